@@ -1,0 +1,75 @@
+"""Attachment springs: a vertex or a barycentric point pulled towards a target.
+
+Spring ``s`` joins the point ``p_s = sum_j w_sj x_j`` (up to four vertices, unused slots have
+weight 0) to ``target_s`` with stiffness ``k_s`` (N/m): energy ``k_s |p_s - target_s|^2 / 2``.
+Its stiffness matrix is ``k_s (w_s w_s^T)`` times the 3x3 identity. Springs are treated
+implicitly, like the elements, so stiff grabbing springs stay stable.
+"""
+
+import warp as wp
+
+
+@wp.kernel
+def spring_forces(
+    spring_indices: wp.array(dtype=wp.vec4i),
+    spring_weights: wp.array(dtype=wp.vec4),
+    spring_stiffness: wp.array(dtype=float),
+    spring_target: wp.array(dtype=wp.vec3),
+    particle_q: wp.array(dtype=wp.vec3),
+    particle_qd: wp.array(dtype=wp.vec3),
+    dv_start: wp.array(dtype=wp.vec3),
+    velocity_scale: float,
+    matrix_scale: float,
+    particle_f: wp.array(dtype=wp.vec3),
+    particle_diagonal: wp.array(dtype=wp.vec3),
+    product_start: wp.array(dtype=wp.vec3),
+):
+    """Spring terms of one step, mirroring :func:`wcut.kernels.tet_p1.tet_forces`.
+
+    Scatters the force ``-k w_j (p - target + velocity_scale dp/dt)``, the diagonal
+    ``matrix_scale k w_j^2`` and ``matrix_scale (K_springs dv_start)_j``.
+    """
+    s = wp.tid()
+    idx = spring_indices[s]
+    w = spring_weights[s]
+    k = spring_stiffness[s]
+    p = wp.vec3(0.0)
+    pd = wp.vec3(0.0)
+    p0 = wp.vec3(0.0)
+    for j in range(4):
+        p += w[j] * particle_q[idx[j]]
+        pd += w[j] * particle_qd[idx[j]]
+        p0 += w[j] * dv_start[idx[j]]
+    f = -k * (p - spring_target[s] + velocity_scale * pd)
+    for j in range(4):
+        if w[j] != 0.0:
+            wp.atomic_add(particle_f, idx[j], w[j] * f)
+            wp.atomic_add(particle_diagonal, idx[j], wp.vec3(matrix_scale * k * w[j] * w[j]))
+            wp.atomic_add(product_start, idx[j], (matrix_scale * k * w[j]) * p0)
+
+
+@wp.kernel
+def spring_matvec(
+    spring_indices: wp.array(dtype=wp.vec4i),
+    spring_weights: wp.array(dtype=wp.vec4),
+    spring_stiffness: wp.array(dtype=float),
+    x: wp.array(dtype=wp.vec3),
+    scale: float,
+    k: int,
+    rz: wp.array(dtype=float),
+    threshold: wp.array(dtype=float),
+    y: wp.array(dtype=wp.vec3),
+):
+    """y += scale K_springs x; returns at once when ``rz[k] <= threshold[0]``."""
+    if rz[k] <= threshold[0]:
+        return
+    s = wp.tid()
+    idx = spring_indices[s]
+    w = spring_weights[s]
+    p = wp.vec3(0.0)
+    for j in range(4):
+        p += w[j] * x[idx[j]]
+    kp = (scale * spring_stiffness[s]) * p
+    for j in range(4):
+        if w[j] != 0.0:
+            wp.atomic_add(y, idx[j], w[j] * kp)

@@ -1,0 +1,350 @@
+"""Scene files (TOML) and the loop that runs them to a USD animation.
+
+A scene names a mesh (a file or a generator), the material, damping, constraints, loads,
+springs, solver settings, duration and output. Every key is checked: an unknown key or a
+value of the wrong type is a :class:`wcut.SceneError` naming the key, e.g.
+``beam_sag.toml: material.youngs_modulus: expected a number, got 'soft'``.
+
+Layout (all sections but ``[mesh]`` are optional; units SI)::
+
+    name = "beam"                      # prim name in the USD file
+    [mesh]
+    path = "meshes/organ.msh"          # any format meshio reads, relative to the scene file
+    # or: generator = "beam", cells = [4, 4, 20], size = [0.04, 0.04, 0.2], origin = [0, 0, 0]
+    [material]      density (kg/m^3), youngs_modulus (Pa), poisson_ratio
+    [damping]       rayleigh_mass (1/s), rayleigh_stiffness (s)
+    [constraints]   fixed_indices = [..], fixed_boxes = [[[x0,y0,z0],[x1,y1,z1]], ...]
+    [loads]         gravity = [gx, gy, gz] (m/s^2)
+    [[loads.force]] box = [[..],[..]], total = [fx, fy, fz] (N, spread evenly over the box's vertices)
+    [[springs]]     point = [x, y, z] or vertex = i; target = [x, y, z]; stiffness (N/m)
+    [solver]        dt (s), cg_iterations, cg_tolerance, rotation_iterations
+    [simulation]    duration (s), fps (frames per second written)
+    [output]        path, stress_colors (bool), up_axis ("Z" or "Y")
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SceneError, WcutError
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python < 3.11
+    import tomli as tomllib
+
+
+def _number(value, key):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SceneError(f"{key}: expected a number, got {value!r}")
+    if not math.isfinite(value):
+        raise SceneError(f"{key}: expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _integer(value, key):
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise SceneError(f"{key}: expected an integer, got {value!r}")
+    return value
+
+
+def _boolean(value, key):
+    if not isinstance(value, bool):
+        raise SceneError(f"{key}: expected true or false, got {value!r}")
+    return value
+
+
+def _string(value, key):
+    if not isinstance(value, str):
+        raise SceneError(f"{key}: expected a string, got {value!r}")
+    return value
+
+
+def _vec3(value, key):
+    if not isinstance(value, list) or len(value) != 3:
+        raise SceneError(f"{key}: expected a list of three numbers, got {value!r}")
+    return [_number(v, f"{key}[{i}]") for i, v in enumerate(value)]
+
+
+def _int3(value, key):
+    if not isinstance(value, list) or len(value) != 3:
+        raise SceneError(f"{key}: expected a list of three integers, got {value!r}")
+    return [_integer(v, f"{key}[{i}]") for i, v in enumerate(value)]
+
+
+def _box(value, key):
+    if not isinstance(value, list) or len(value) != 2:
+        raise SceneError(f"{key}: expected [[x0, y0, z0], [x1, y1, z1]], got {value!r}")
+    return [_vec3(value[0], f"{key}[0]"), _vec3(value[1], f"{key}[1]")]
+
+
+def _list_of(item):
+    def check(value, key):
+        if not isinstance(value, list):
+            raise SceneError(f"{key}: expected a list, got {value!r}")
+        return [item(v, f"{key}[{i}]") for i, v in enumerate(value)]
+    return check
+
+
+# section -> key -> (checker, default); a default of None means "absent unless given"
+_SCHEMA = {
+    "mesh": {"path": (_string, None), "generator": (_string, None), "cells": (_int3, [4, 4, 20]),
+             "size": (_vec3, [0.04, 0.04, 0.2]), "origin": (_vec3, [0.0, 0.0, 0.0]),
+             "tets_per_hex": (_integer, 5)},
+    "material": {"density": (_number, 1000.0), "youngs_modulus": (_number, 1.0e5),
+                 "poisson_ratio": (_number, 0.3)},
+    "damping": {"rayleigh_mass": (_number, 0.0), "rayleigh_stiffness": (_number, 0.0)},
+    "constraints": {"fixed_indices": (_list_of(_integer), []), "fixed_boxes": (_list_of(_box), [])},
+    "loads": {"gravity": (_vec3, [0.0, 0.0, -9.81]), "force": (None, [])},
+    "solver": {"dt": (_number, 0.01), "cg_iterations": (_integer, 50), "cg_tolerance": (_number, 1.0e-5),
+               "rotation_iterations": (_integer, 8)},
+    "simulation": {"duration": (_number, 2.0), "fps": (_number, 30.0)},
+    "output": {"path": (_string, None), "stress_colors": (_boolean, True), "up_axis": (_string, "Z")},
+}
+_FORCE_SCHEMA = {"box": (_box, None), "total": (_vec3, None)}
+_SPRING_SCHEMA = {"point": (_vec3, None), "vertex": (_integer, None), "target": (_vec3, None),
+                  "stiffness": (_number, None)}
+
+
+def _table(raw, schema, where):
+    if not isinstance(raw, dict):
+        raise SceneError(f"{where}: expected a table, got {raw!r}")
+    unknown = sorted(set(raw) - set(schema))
+    if unknown:
+        raise SceneError(f"{where}.{unknown[0]}: unknown key (expected one of: {', '.join(sorted(schema))})")
+    out = {}
+    for key, (check, default) in schema.items():
+        if key in raw:
+            out[key] = check(raw[key], f"{where}.{key}") if check else raw[key]
+        else:
+            out[key] = default
+    return out
+
+
+@dataclass
+class Scene:
+    """A parsed, validated scene. ``path`` is the scene file; relative paths resolve against it."""
+
+    path: Path
+    name: str
+    mesh: dict
+    material: dict
+    damping: dict
+    constraints: dict
+    loads: dict
+    forces: list = field(default_factory=list)
+    springs: list = field(default_factory=list)
+    solver: dict = field(default_factory=dict)
+    simulation: dict = field(default_factory=dict)
+    output: dict = field(default_factory=dict)
+
+    @property
+    def frame_count(self) -> int:
+        """Frames after the initial one: ``round(duration * fps)``."""
+        return max(1, round(self.simulation["duration"] * self.simulation["fps"]))
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read and validate a scene file. Raises :class:`SceneError` naming the file and key."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SceneError(f"{path}: no such scene file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"{path}: cannot read: {exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: not valid TOML: {exc}") from exc
+    try:
+        return _parse(raw, path)
+    except SceneError as exc:
+        raise SceneError(f"{path.name}: {exc}") from None
+
+
+def _parse(raw: dict, path: Path) -> Scene:
+    top = set(_SCHEMA) | {"name", "springs"}
+    unknown = sorted(set(raw) - top)
+    if unknown:
+        raise SceneError(f"{unknown[0]}: unknown key (expected one of: {', '.join(sorted(top))})")
+    if "mesh" not in raw:
+        raise SceneError("mesh: missing section (give mesh.path or mesh.generator)")
+    sections = {name: _table(raw.get(name, {}), schema, name) for name, schema in _SCHEMA.items()}
+    mesh = sections["mesh"]
+    if (mesh["path"] is None) == (mesh["generator"] is None):
+        raise SceneError("mesh: give exactly one of mesh.path and mesh.generator")
+    if mesh["generator"] not in (None, "beam"):
+        raise SceneError(f"mesh.generator: unknown generator {mesh['generator']!r} (expected 'beam')")
+    forces = sections["loads"].pop("force")
+    if not isinstance(forces, list):
+        raise SceneError("loads.force: expected an array of tables ([[loads.force]])")
+    forces = [_table(f, _FORCE_SCHEMA, f"loads.force[{i}]") for i, f in enumerate(forces)]
+    for i, f in enumerate(forces):
+        for key in ("box", "total"):
+            if f[key] is None:
+                raise SceneError(f"loads.force[{i}].{key}: missing")
+    springs = raw.get("springs", [])
+    if not isinstance(springs, list):
+        raise SceneError("springs: expected an array of tables ([[springs]])")
+    springs = [_table(s, _SPRING_SCHEMA, f"springs[{i}]") for i, s in enumerate(springs)]
+    for i, s in enumerate(springs):
+        if (s["point"] is None) == (s["vertex"] is None):
+            raise SceneError(f"springs[{i}]: give exactly one of point and vertex")
+        for key in ("target", "stiffness"):
+            if s[key] is None:
+                raise SceneError(f"springs[{i}].{key}: missing")
+    solver, sim, out = sections["solver"], sections["simulation"], sections["output"]
+    for key, value in (("solver.dt", solver["dt"]), ("simulation.duration", sim["duration"]),
+                       ("simulation.fps", sim["fps"])):
+        if value <= 0:
+            raise SceneError(f"{key}: must be positive, got {value}")
+    if out["up_axis"] not in ("Y", "Z"):
+        raise SceneError(f"output.up_axis: expected 'Y' or 'Z', got {out['up_axis']!r}")
+    name = _string(raw.get("name", path.stem), "name")
+    return Scene(path=path, name=name, mesh=mesh, material=sections["material"], damping=sections["damping"],
+                 constraints=sections["constraints"], loads=sections["loads"], forces=forces, springs=springs,
+                 solver=solver, simulation=sim, output=out)
+
+
+def build_mesh(scene: Scene):
+    """The scene's TetMesh: loaded (path relative to the scene file) or generated."""
+    from .mesh import TetMesh, beam
+
+    m = scene.mesh
+    if m["path"] is not None:
+        return TetMesh.load(scene.path.parent / m["path"])
+    return beam(*m["cells"], size=m["size"], origin=m["origin"], tets_per_hex=m["tets_per_hex"])
+
+
+def build_model(scene: Scene, mesh=None, device=None):
+    """Model and Control of a scene (constraints, loads and springs applied)."""
+    from .model import Model, Springs
+
+    mesh = mesh if mesh is not None else build_mesh(scene)
+    c = scene.constraints
+    fixed = [np.asarray(c["fixed_indices"], dtype=np.int64)]
+    fixed += [mesh.vertices_in_box(*box) for box in c["fixed_boxes"]]
+    fixed = np.unique(np.concatenate(fixed)).astype(np.int64)
+    for i, box in enumerate(c["fixed_boxes"]):
+        if len(mesh.vertices_in_box(*box)) == 0:
+            raise SceneError(f"{scene.path.name}: constraints.fixed_boxes[{i}] contains no vertex")
+    springs = Springs.empty()
+    for s in scene.springs:
+        if s["vertex"] is not None:
+            if not 0 <= s["vertex"] < mesh.vertex_count:
+                raise SceneError(f"{scene.path.name}: springs vertex {s['vertex']} out of range "
+                                 f"0..{mesh.vertex_count - 1}")
+            springs = springs.concatenate(Springs.at_vertices([s["vertex"]], s["stiffness"]))
+        else:
+            springs = springs.concatenate(Springs.at_points(mesh, [s["point"]], s["stiffness"]))
+    model = Model(mesh, **scene.material, **scene.damping, gravity=scene.loads["gravity"], fixed=fixed,
+                  springs=springs, device=device)
+    control = model.control()
+    forces = np.zeros((mesh.vertex_count, 3))
+    for i, f in enumerate(scene.forces):
+        ids = mesh.vertices_in_box(*f["box"])
+        if len(ids) == 0:
+            raise SceneError(f"{scene.path.name}: loads.force[{i}].box contains no vertex")
+        forces[ids] += np.asarray(f["total"]) / len(ids)
+    control.particle_f.assign(forces.astype(np.float32))
+    if len(scene.springs):
+        control.spring_target.assign(np.array([s["target"] for s in scene.springs], dtype=np.float32))
+    return model, control
+
+
+@dataclass
+class RunResult:
+    """What :func:`run_scene` reports."""
+
+    frames: int
+    steps: int
+    mean_step_ms: float
+    nodes: int
+    elements: int
+    output: Path | None
+
+
+def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: int | None = None,
+              progress: bool | None = None, device=None) -> RunResult:
+    """Simulate a scene and write its USD animation (atomically).
+
+    Args:
+        scene: a loaded scene.
+        output: the USD file (.usd, .usda or .usdc); defaults to ``[output].path`` or
+            ``<scene name>.usdc`` in the current directory.
+        frames: frames to simulate after the initial one (default: duration * fps).
+        progress: show a progress bar; default: only when standard error is a terminal.
+
+    Each frame advances ``1 / fps`` seconds in ``ceil(1 / (fps * dt))`` equal sub-steps.
+    """
+    import warp as wp
+
+    from .solver import SolverCorotational
+    from .stress import vertex_von_mises
+    from .usd import UsdAnimationWriter, stress_colors
+
+    frames = scene.frame_count if frames is None else frames
+    if frames < 1:
+        raise SceneError(f"frames must be at least 1, got {frames}")
+    output = Path(output or scene.output["path"] or f"{scene.name}.usdc")
+    model, control = build_model(scene, device=device)
+    s = scene.solver
+    solver = SolverCorotational(model, cg_iterations=s["cg_iterations"], cg_tolerance=s["cg_tolerance"],
+                                rotation_iterations=s["rotation_iterations"])
+    fps = scene.simulation["fps"]
+    substeps = max(1, math.ceil(1.0 / (fps * s["dt"]) - 1e-9))
+    dt = 1.0 / (fps * substeps)
+    state, next_state = model.state(), model.state()
+    surface = model.mesh.boundary()
+    colored = scene.output["stress_colors"]
+
+    def write(writer, frame):
+        points = state.particle_q.numpy()[surface.vertex_ids]
+        colors = None
+        if colored:
+            colors = stress_colors(vertex_von_mises(model, state)[surface.vertex_ids], vmin=0.0)
+        writer.write_frame(scene.name, frame, points, surface.local_triangles, colors)
+
+    show = sys.stderr.isatty() if progress is None else progress
+    bar = _progress(frames, show, scene.name)
+    step_seconds = 0.0
+    with UsdAnimationWriter(output, fps=fps, up_axis=scene.output["up_axis"]) as writer:
+        write(writer, 0)
+        for frame in range(1, frames + 1):
+            start = time.perf_counter()
+            for _ in range(substeps):
+                solver.step(state, next_state, control, dt)
+                state, next_state = next_state, state
+            wp.synchronize_device(model.device)
+            step_seconds += time.perf_counter() - start
+            solver.check_finite()
+            write(writer, frame)
+            bar.update(1)
+    bar.close()
+    return RunResult(frames=frames, steps=frames * substeps, mean_step_ms=1e3 * step_seconds / (frames * substeps),
+                     nodes=model.particle_count, elements=model.tet_count, output=output)
+
+
+class _NoBar:
+    def update(self, n):
+        pass
+
+    def close(self):
+        pass
+
+
+def _progress(total: int, show: bool, label: str):
+    if not show:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=label, unit="frame", file=sys.stderr, leave=False)
+
+
+__all__ = ["Scene", "RunResult", "load_scene", "build_mesh", "build_model", "run_scene", "WcutError"]
