@@ -1,0 +1,210 @@
+"""SolverCorotational: the implicit step against scipy, statics against beam theory,
+conservation, dissipation, determinism and embedding in a user's Warp loop."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+import wcut
+from wcut.errors import SimulationError
+from wcut.model import Model, Springs
+from wcut.reference import ScipyCorotationalStep
+from wcut.solver import SolverCorotational
+
+
+def clamped_beam(cells=(8, 2, 2), **material):
+    mesh = wcut.beam(*cells, size=(0.4, 0.1, 0.1))
+    params = dict(density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3, gravity=(0.0, 0.0, -9.81)) | material
+    return mesh, Model(mesh, fixed=mesh.vertices_in_box((-1, -1, -1), (1e-9, 1, 1)), **params), params
+
+
+def run(model, solver, steps, dt, control=None, state=None):
+    state = state or model.state()
+    scratch = model.state()
+    for _ in range(steps):
+        solver.step(state, scratch, control, dt)
+        state, scratch = scratch, state
+    return state
+
+
+def test_step_matches_the_scipy_reference_solved_with_spsolve():
+    mesh, model, params = clamped_beam()
+    fixed = model.particle_fixed.numpy().astype(bool)
+    springs = Springs.at_points(mesh, [[0.35, 0.05, 0.05]], 50.0)
+    model = Model(mesh, fixed=fixed, springs=springs, rayleigh_mass=0.5, rayleigh_stiffness=0.01, **params)
+    ref = ScipyCorotationalStep(mesh.vertices, mesh.tets, fixed=fixed, rayleigh_mass=0.5, rayleigh_stiffness=0.01,
+                                spring_indices=springs.indices, spring_weights=springs.weights,
+                                spring_stiffness=springs.stiffness, **params)
+    control = model.control()
+    target = np.array([[0.45, 0.0, 0.1]])
+    control.spring_target.assign(target)
+    rng = np.random.default_rng(0)
+    f_ext = 0.01 * rng.standard_normal((model.particle_count, 3))
+    control.particle_f.assign(f_ext)
+    solver = SolverCorotational(model, cg_iterations=400, cg_tolerance=1e-7, rotation_iterations=30)
+    state, out = model.state(), model.state()
+    x, v = mesh.vertices.copy(), np.zeros_like(mesh.vertices)
+    for _ in range(5):
+        solver.step(state, out, control, 0.01)
+        state, out = out, state
+        x, v = ref.step(x, v, 0.01, f_ext=f_ext, spring_targets=target, direct=True)
+    assert solver.last_relative_residual < 1e-6
+    np.testing.assert_allclose(state.particle_qd.numpy(), v, atol=1e-4 * np.abs(v).max())
+    np.testing.assert_allclose(state.particle_q.numpy(), x, atol=1e-5)
+    assert np.array_equal(state.particle_q.numpy()[fixed], mesh.vertices[fixed].astype(np.float32))
+
+
+def test_static_cantilever_converges_toward_beam_theory():
+    """Tip deflection of a clamped 1 m x 0.1 m x 0.1 m beam under its weight (thesis 3.5, fig. 3.12)."""
+    L, H, E, rho, g = 1.0, 0.1, 1.0e9, 1000.0, 9.81
+    q, I = rho * g * H * H, H ** 4 / 12
+    bending = q * L ** 4 / (8 * E * I)
+    shear = q * L ** 2 / (2 * (5 / 6) * (E / 2) * H * H)  # Timoshenko correction, nu = 0
+    exact = bending + shear
+    errors, sizes = [], []
+    for n in (1, 2, 3, 4):
+        mesh = wcut.beam(10 * n, n, n, size=(L, H, H))
+        model = Model(mesh, density=rho, youngs_modulus=E, poisson_ratio=0.0, gravity=(0, 0, -g),
+                      fixed=mesh.vertices_in_box((-1, -1, -1), (1e-9, 1, 1)))
+        solver = SolverCorotational(model, cg_iterations=3000, cg_tolerance=1e-7)
+        state = run(model, solver, 2, dt=1.0e3)  # quasi-static: the mass term vanishes next to dt^2 K
+        tip = mesh.vertices[:, 0] > L - 1e-9
+        deflection = -(state.particle_q.numpy()[tip, 2] - mesh.vertices[tip, 2]).mean()
+        errors.append(abs(deflection - exact) / exact)
+        sizes.append(H / n)
+    assert all(a > b for a, b in zip(errors, errors[1:])), errors
+    order = np.log(errors[-2] / errors[-1]) / np.log(sizes[-2] / sizes[-1])
+    assert 1.0 < order < 2.5, (errors, order)  # linear tets: order approaching 2 in displacement
+    assert errors[-1] < 0.15, errors
+
+
+def test_linear_momentum_is_conserved_without_constraints_and_gravity():
+    mesh = wcut.beam(4, 2, 2, size=(0.2, 0.1, 0.1))
+    model = Model(mesh, youngs_modulus=1e5, gravity=(0, 0, 0))
+    rng = np.random.default_rng(1)
+    state = model.state()
+    state.particle_qd.assign(rng.standard_normal((model.particle_count, 3)))
+    mass = model.particle_mass.numpy()[:, None]
+    before = (mass * state.particle_qd.numpy()).sum(axis=0)
+    solver = SolverCorotational(model, cg_iterations=300, cg_tolerance=1e-7)
+    state = run(model, solver, 40, 0.005, state=state)
+    after = (mass * state.particle_qd.numpy()).sum(axis=0)
+    np.testing.assert_allclose(after, before, atol=1e-4 * np.abs(mass * rng.standard_normal(1)).sum() + 1e-5)
+    assert np.abs(state.particle_qd.numpy()).max() > 0.1  # it did move
+
+
+def elastic_energy(model, state):
+    """Corotational strain energy sum V (mu eps:eps + lambda/2 tr(eps)^2), eps = sym(R^T F) - I,
+    with R the polar rotation of F computed here in float64."""
+    from wcut.model import lame_parameters
+
+    x = state.particle_q.numpy().astype(np.float64)[model.mesh.tets]
+    Ds = np.stack([x[:, 0] - x[:, 3], x[:, 1] - x[:, 3], x[:, 2] - x[:, 3]], axis=2)
+    F = Ds @ model.tet_shape_gradients.numpy().astype(np.float64)
+    U, _, Vt = np.linalg.svd(F)
+    S = np.einsum("nji,njk->nik", U @ Vt, F)
+    eps = 0.5 * (S + S.transpose(0, 2, 1)) - np.eye(3)
+    mu, lam = lame_parameters(model.tet_youngs_modulus, model.tet_poisson_ratio)
+    tr = np.trace(eps, axis1=1, axis2=2)
+    return float(np.sum(model.tet_rest_volume.numpy() * (mu * np.sum(eps * eps, axis=(1, 2)) + 0.5 * lam * tr ** 2)))
+
+
+def total_energy(model, state):
+    kinetic = 0.5 * np.sum(model.particle_mass.numpy()[:, None] * state.particle_qd.numpy() ** 2)
+    return kinetic + elastic_energy(model, state)
+
+
+@pytest.mark.parametrize("damping", [dict(rayleigh_mass=20.0), dict(rayleigh_stiffness=0.02)])
+def test_damping_dissipates_energy(damping):
+    """A stretched free beam is released: energy decreases monotonically, faster with damping."""
+    finals = {}
+    for name, params in (("undamped", {}), ("damped", damping)):
+        mesh = wcut.beam(6, 2, 2, size=(0.3, 0.1, 0.1))
+        model = Model(mesh, youngs_modulus=1e4, gravity=(0, 0, 0), **params)
+        solver = SolverCorotational(model, cg_iterations=300, cg_tolerance=1e-7)
+        state, scratch = model.state(), model.state()
+        state.particle_q.assign(mesh.vertices * np.array([1.1, 0.97, 0.97]))
+        solver.step(state, scratch, None, 1e-4)  # settle the rotations before measuring
+        energies = []
+        for _ in range(60):
+            solver.step(state, scratch, None, 0.001)
+            state, scratch = scratch, state
+            energies.append(total_energy(model, state))
+        assert all(b <= a * (1 + 1e-5) for a, b in zip(energies, energies[1:])), name
+        finals[name] = energies[-1] / energies[0]
+    assert finals["damped"] < 0.5 * finals["undamped"]
+
+
+def test_two_runs_give_identical_results():
+    results = []
+    for _ in range(2):
+        _, model, _ = clamped_beam(rayleigh_mass=0.5)
+        solver = SolverCorotational(model, cg_iterations=20, cg_tolerance=1e-6)
+        state = run(model, solver, 20, 0.01)
+        results.append((state.particle_q.numpy().copy(), state.particle_qd.numpy().copy()))
+    assert np.array_equal(results[0][0], results[1][0]) and np.array_equal(results[0][1], results[1][1])
+
+
+@wp.kernel
+def lift_tip(particle_q: wp.array(dtype=wp.vec3), particle_qd: wp.array(dtype=wp.vec3), x_min: float, speed: float):
+    i = wp.tid()
+    if particle_q[i][0] > x_min:
+        particle_qd[i] = wp.vec3(0.0, 0.0, speed)
+
+
+def test_embedding_user_kernels_and_two_models_in_one_loop():
+    _, beam_a, _ = clamped_beam()
+    _, beam_b, _ = clamped_beam(cells=(6, 2, 2), youngs_modulus=3e5)
+    solver_a = SolverCorotational(beam_a, cg_iterations=100, cg_tolerance=1e-6)
+    solver_b = SolverCorotational(beam_b, cg_iterations=100, cg_tolerance=1e-6)
+    a, a_next, b, b_next = beam_a.state(), beam_a.state(), beam_b.state(), beam_b.state()
+    sagged = run(beam_a, SolverCorotational(beam_a, cg_iterations=100, cg_tolerance=1e-6), 30, 0.01)
+    for _ in range(30):
+        wp.launch(lift_tip, beam_a.particle_count, inputs=[a.particle_q, a.particle_qd, 0.35, 0.5])
+        solver_a.step(a, a_next, None, 0.01)
+        solver_b.step(b, b_next, None, 0.01)
+        a, a_next, b, b_next = a_next, a, b_next, b
+    # the user's kernel lifted beam a against gravity; beam b sags as if alone
+    tip = beam_a.mesh.vertices[:, 0] > 0.35
+    assert a.particle_q.numpy()[tip, 2].mean() > sagged.particle_q.numpy()[tip, 2].mean() + 0.2
+    alone = run(beam_b, SolverCorotational(beam_b, cg_iterations=100, cg_tolerance=1e-6), 30, 0.01)
+    assert np.array_equal(alone.particle_q.numpy(), b.particle_q.numpy())
+    assert b.particle_q.numpy()[:, 2].min() < -0.001
+
+
+def test_a_stiff_spring_drags_its_point_to_the_target():
+    mesh, _, params = clamped_beam()
+    springs = Springs.at_points(mesh, [[0.4, 0.05, 0.05]], 1.0e4)
+    model = Model(mesh, fixed=mesh.vertices_in_box((-1, -1, -1), (1e-9, 1, 1)), springs=springs,
+                  rayleigh_mass=5.0, **params)
+    control = model.control()
+    target = np.array([0.4, 0.05, 0.15])
+    control.spring_target.assign(target[None])
+    state = run(model, SolverCorotational(model, cg_iterations=200, cg_tolerance=1e-6), 100, 0.01, control)
+    point = springs.weights[0] @ state.particle_q.numpy()[springs.indices[0]]
+    assert np.linalg.norm(point - target) < 0.01  # within 1 cm of a 10 cm pull
+
+
+def test_bad_input_raises_errors_that_say_what():
+    _, model, _ = clamped_beam()
+    solver = SolverCorotational(model)
+    with pytest.raises(SimulationError, match="time step"):
+        solver.step(model.state(), model.state(), None, 0.0)
+    with pytest.raises(SimulationError, match="cg_iterations"):
+        SolverCorotational(model, cg_iterations=0)
+    mesh = wcut.beam(2, 1, 1)
+    sprung = Model(mesh, springs=Springs.at_vertices([0], 1.0))
+    with pytest.raises(SimulationError, match="Control"):
+        SolverCorotational(sprung).step(sprung.state(), sprung.state(), None, 0.01)
+
+
+def test_divergence_is_reported():
+    _, model, _ = clamped_beam()
+    solver = SolverCorotational(model, cg_iterations=5)
+    state = model.state()
+    q = state.particle_q.numpy()
+    q[5] = np.nan
+    state.particle_q.assign(q)
+    solver.step(state, model.state(), None, 0.01)
+    with pytest.raises(SimulationError, match="diverged"):
+        solver.check_finite()

@@ -1,0 +1,143 @@
+"""Corotational P1 element kernels (kernels/tet_p1.py): patch test, invariance, derivatives,
+and the matrix-free product against an independently assembled scipy matrix."""
+
+import numpy as np
+import pytest
+import warp as wp
+from scipy.spatial.transform import Rotation
+
+import wcut
+from wcut.kernels import tet_p1
+from wcut.model import Model, lame_parameters
+from wcut.reference import ScipyCorotationalStep
+from wcut.stress import element_stress
+
+E, NU = 1.0e5, 0.3
+
+
+@pytest.fixture(scope="module")
+def cube_mesh():
+    """3x3x3 cells of 5 tets in a 0.3 m cube: 8 interior vertices."""
+    return wcut.beam(3, 3, 3, size=(0.3, 0.3, 0.3))
+
+
+def element_terms(model, x, v=None, dv=None, rotation_iterations=60, velocity_scale=0.0, matrix_scale=1.0):
+    """Launch tet_forces; returns forces, rotated gradients, start product and diagonal (float64)."""
+    n = model.particle_count
+    zeros = np.zeros((n, 3))
+    arrays = {name: wp.zeros(n, dtype=wp.vec3) for name in ("f", "diag", "start")}
+    q = wp.full(model.tet_count, wp.quat_identity(), dtype=wp.quat)
+    g = wp.zeros(model.tet_count, dtype=wp.mat33)
+    wp.launch(tet_p1.tet_forces, model.tet_count,
+              inputs=[model.tet_indices, model.tet_shape_gradients, model.tet_stiffness,
+                      wp.array(x, dtype=wp.vec3), wp.array(zeros if v is None else v, dtype=wp.vec3),
+                      wp.array(zeros if dv is None else dv, dtype=wp.vec3), q, velocity_scale, matrix_scale,
+                      rotation_iterations, 1e-7],
+              outputs=[q, g, arrays["f"], arrays["diag"], arrays["start"]])
+    return {name: a.numpy().astype(np.float64) for name, a in arrays.items()} | {"gradients": g, "rotation": q}
+
+
+def stiffness_product(model, gradients, p, scale=1.0):
+    y = wp.zeros(model.particle_count, dtype=wp.vec3)
+    rz, threshold = wp.array([1.0], dtype=float), wp.array([0.0], dtype=float)
+    wp.launch(tet_p1.tet_matvec, model.tet_count,
+              inputs=[model.tet_indices, gradients, model.tet_stiffness, wp.array(p, dtype=wp.vec3), scale, 0, rz,
+                      threshold],
+              outputs=[y])
+    return y.numpy().astype(np.float64)
+
+
+def interior(mesh):
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    return np.flatnonzero(np.all((mesh.vertices > lo + 1e-9) & (mesh.vertices < hi - 1e-9), axis=1))
+
+
+def test_patch_test_affine_displacement_gives_exact_strain_and_no_interior_force(cube_mesh):
+    model = Model(cube_mesh, youngs_modulus=E, poisson_ratio=NU)
+    H = np.array([[0.02, 0.005, -0.004], [0.005, -0.01, 0.003], [-0.004, 0.003, 0.015]])  # symmetric: R = I
+    x = cube_mesh.vertices @ (np.eye(3) + H).T + np.array([0.1, -0.2, 0.05])
+    terms = element_terms(model, x)
+    inner = interior(cube_mesh)
+    assert len(inner) == 8
+    scale = np.abs(terms["f"]).max()
+    assert np.abs(terms["f"][inner]).max() < 1e-4 * scale
+    state = model.state()
+    state.particle_q.assign(x)
+    state.tet_rotation.assign(terms["rotation"])
+    stress, von_mises = element_stress(model, state)
+    mu, lam = lame_parameters(E, NU)
+    exact = 2 * mu * H + lam * np.trace(H) * np.eye(3)
+    np.testing.assert_allclose(stress, np.broadcast_to(exact, stress.shape), atol=2e-5 * np.abs(exact).max())
+    deviator = exact - np.trace(exact) / 3 * np.eye(3)
+    np.testing.assert_allclose(von_mises, np.sqrt(1.5 * np.sum(deviator ** 2)), rtol=1e-4)
+
+
+def test_rigid_motion_gives_no_ghost_forces(cube_mesh):
+    model = Model(cube_mesh, youngs_modulus=E, poisson_ratio=NU)
+    Q = Rotation.from_rotvec([0.4, -2.0, 1.1]).as_matrix()  # a large rotation
+    x = cube_mesh.vertices @ Q.T + np.array([1.0, 2.0, -0.5])
+    f = element_terms(model, x)["f"]
+    reference_scale = np.abs(element_terms(model, cube_mesh.vertices * 1.01)["f"]).max()  # 1% stretch
+    # float32 positions 2 m from the origin carry ~1e-6 strain noise; a linear (not corotated)
+    # element would give forces about 100x the reference here
+    assert np.abs(f).max() < 1e-3 * reference_scale
+
+
+def test_forces_rotate_with_the_body(cube_mesh):
+    model = Model(cube_mesh, youngs_modulus=E, poisson_ratio=NU)
+    rng = np.random.default_rng(7)
+    x = cube_mesh.vertices + 0.01 * rng.standard_normal(cube_mesh.vertices.shape)
+    Q = Rotation.from_rotvec([1.2, 0.3, -0.8]).as_matrix()
+    f = element_terms(model, x)["f"]
+    f_rotated = element_terms(model, x @ Q.T + np.array([0.3, 0.0, 1.0]))["f"]
+    np.testing.assert_allclose(f_rotated, f @ Q.T, atol=2e-4 * np.abs(f).max())
+
+
+def test_forces_match_the_independent_scipy_reference(cube_mesh):
+    model = Model(cube_mesh, youngs_modulus=E, poisson_ratio=NU)
+    ref = ScipyCorotationalStep(cube_mesh.vertices, cube_mesh.tets, density=1000.0, youngs_modulus=E,
+                                poisson_ratio=NU)
+    rng = np.random.default_rng(8)
+    Q = Rotation.from_rotvec([0.2, 0.9, -0.4]).as_matrix()
+    x = (cube_mesh.vertices + 0.01 * rng.standard_normal(cube_mesh.vertices.shape)) @ Q.T
+    f_ref = ref.internal_forces(x)
+    np.testing.assert_allclose(element_terms(model, x)["f"], f_ref, atol=1e-4 * np.abs(f_ref).max())
+
+
+def test_force_derivative_matches_finite_differences(cube_mesh):
+    """At a rotated rest shape the tangent is exactly R K R^T; under strain the difference is O(strain)."""
+    model = Model(cube_mesh, youngs_modulus=E, poisson_ratio=NU)
+    rng = np.random.default_rng(9)
+    Q = Rotation.from_rotvec([0.5, -0.7, 0.2]).as_matrix()
+    direction = rng.standard_normal(cube_mesh.vertices.shape)
+    h = 1e-4  # m
+    for strain, tolerance in ((0.0, 2e-3), (0.02, 0.1)):
+        x = (cube_mesh.vertices * (1 + strain)) @ Q.T
+        terms = element_terms(model, x)
+        fd = (element_terms(model, x + h * direction)["f"] - element_terms(model, x - h * direction)["f"]) / (2 * h)
+        product = stiffness_product(model, terms["gradients"], direction)
+        error = np.abs(fd + product).max() / np.abs(product).max()
+        assert error < tolerance, (strain, error)
+        if strain == 0.0:
+            exact_error = error
+    assert exact_error < error  # the O(strain) term of the full tangent shows up only under strain
+
+
+def test_matrix_free_product_is_symmetric_and_equals_the_assembled_matrix(cube_mesh):
+    model = Model(cube_mesh, youngs_modulus=E, poisson_ratio=NU)
+    ref = ScipyCorotationalStep(cube_mesh.vertices, cube_mesh.tets, density=1000.0, youngs_modulus=E,
+                                poisson_ratio=NU)
+    rng = np.random.default_rng(10)
+    Q = Rotation.from_rotvec([-1.0, 0.4, 0.3]).as_matrix()
+    x = (cube_mesh.vertices + 0.02 * rng.standard_normal(cube_mesh.vertices.shape)) @ Q.T
+    terms = element_terms(model, x)
+    K = ref.stiffness_matrix(x)
+    u, w = rng.standard_normal((2, model.particle_count, 3))
+    Ku = stiffness_product(model, terms["gradients"], u)
+    Kw = stiffness_product(model, terms["gradients"], w)
+    np.testing.assert_allclose(Ku.ravel(), K @ u.ravel(), atol=1e-4 * np.abs(Ku).max())
+    assert abs(np.vdot(w, Ku) - np.vdot(u, Kw)) < 1e-5 * abs(np.vdot(u, Ku))
+    np.testing.assert_allclose(terms["diag"].ravel(), K.diagonal(), rtol=1e-4)
+    # the fused warm-start product of tet_forces is the same operator
+    start = element_terms(model, x, dv=u, matrix_scale=0.5)["start"]
+    np.testing.assert_allclose(start, 0.5 * Ku, atol=1e-4 * np.abs(Ku).max())
