@@ -122,3 +122,57 @@ def cg_direction(
         return
     i = wp.tid()
     p[i] = z[i] + (rz[k + 1] / rz[k]) * p[i]
+
+
+# -- kernels of the same system as a warp.optim.linear LinearOperator (for the benchmark that
+#    compares this fused loop with warp.optim.linear.cg) ----------------------------------
+
+
+@wp.kernel
+def operator_mass_axpby(
+    x: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
+    inv_diagonal: wp.array(dtype=wp.vec3),
+    mass_scale: wp.array(dtype=float),
+    alpha: float,
+    beta: float,
+    z: wp.array(dtype=wp.vec3),
+):
+    """z = beta y + alpha m x (free vertices) or beta y + alpha x (fixed: identity rows)."""
+    i = wp.tid()
+    m = mass_scale[i]
+    if inv_diagonal[i][0] == 0.0:
+        m = 1.0
+    z[i] = beta * y[i] + (alpha * m) * x[i]
+
+
+@wp.kernel
+def operator_restore_fixed_rows(
+    x: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
+    inv_diagonal: wp.array(dtype=wp.vec3),
+    alpha: float,
+    beta: float,
+    z: wp.array(dtype=wp.vec3),
+):
+    """Undo the element products on fixed rows: z = beta y + alpha x there."""
+    i = wp.tid()
+    if inv_diagonal[i][0] == 0.0:
+        z[i] = beta * y[i] + alpha * x[i]
+
+
+@wp.kernel
+def jacobi_axpby(
+    x: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
+    inv_diagonal: wp.array(dtype=wp.vec3),
+    alpha: float,
+    beta: float,
+    z: wp.array(dtype=wp.vec3),
+):
+    """z = alpha D^-1 x + beta y, with D^-1 = I on fixed rows."""
+    i = wp.tid()
+    d = inv_diagonal[i]
+    if d[0] == 0.0:
+        d = wp.vec3(1.0)
+    z[i] = alpha * wp.cw_mul(d, x[i]) + beta * y[i]

@@ -7,6 +7,7 @@ with exit status 2; output files are written atomically, so a failed run leaves 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from . import __version__
@@ -68,12 +69,36 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _init_warp_quietly() -> None:
+    """Initialise Warp without its banner, and without the native CPU-only notice that no CUDA
+    driver was found (printed straight to file descriptor 2); any other native message is kept."""
+    import tempfile
+
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        for line in captured.read().decode(errors="replace").splitlines():
+            if "Could not find or load the NVIDIA CUDA driver" not in line:
+                print(line, file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 2
+    _init_warp_quietly()
     try:
         return args.func(args)
     except WcutError as exc:

@@ -14,6 +14,8 @@ elements must form a conforming discretization), so every later stage can rely o
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 from dataclasses import dataclass
 
@@ -187,9 +189,12 @@ class TetMesh:
         if not os.path.exists(path):
             raise MeshError(f"{path}: no such file")
         try:
-            data = meshio.read(path)
-        except Exception as exc:  # meshio raises many types (ReadError, KeyError, ValueError, ...)
-            raise MeshError(f"{path}: cannot read mesh: {exc}") from exc
+            # meshio prints its own messages and may call sys.exit() on a malformed file
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                data = meshio.read(path)
+        except (Exception, SystemExit) as exc:  # ReadError, KeyError, ValueError, SystemExit, ...
+            detail = str(exc) if not isinstance(exc, SystemExit) else "malformed file"
+            raise MeshError(f"{path}: cannot read mesh: {detail}") from None
         blocks = [block.data for block in data.cells if block.type == "tetra"]
         if not blocks:
             kinds = sorted({block.type for block in data.cells})

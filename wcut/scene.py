@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -206,7 +207,13 @@ def _parse(raw: dict, path: Path) -> Scene:
             raise SceneError(f"{key}: must be positive, got {value}")
     if out["up_axis"] not in ("Y", "Z"):
         raise SceneError(f"output.up_axis: expected 'Y' or 'Z', got {out['up_axis']!r}")
-    name = _string(raw.get("name", path.stem), "name")
+    if "name" in raw:
+        name = _string(raw["name"], "name")
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+            raise SceneError(f"name: {name!r} is not a valid object name (letters, digits, _; not a digit first)")
+    else:  # from the file name, made a valid USD identifier
+        name = re.sub(r"\W", "_", path.stem)
+        name = name if re.match(r"[A-Za-z_]", name) else f"_{name}"
     return Scene(path=path, name=name, mesh=mesh, material=sections["material"], damping=sections["damping"],
                  constraints=sections["constraints"], loads=sections["loads"], forces=forces, springs=springs,
                  solver=solver, simulation=sim, output=out)

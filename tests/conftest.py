@@ -1,0 +1,68 @@
+"""Shared fixtures of the wcut test suite."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+
+import wcut
+
+#: A tiny scene: a 4x2x2 beam clamped at x = 0 (45 vertices, 80 tetrahedra).
+TINY_SCENE = """
+name = "tiny"
+
+[mesh]
+generator = "beam"
+cells = [4, 2, 2]
+size = [0.2, 0.05, 0.05]
+
+[material]
+youngs_modulus = 2.0e5
+poisson_ratio = 0.35
+
+[constraints]
+fixed_boxes = [[[-0.001, -1.0, -1.0], [0.001, 1.0, 1.0]]]
+
+[solver]
+dt = 0.01
+cg_iterations = 30
+
+[simulation]
+duration = 0.1
+fps = 30
+"""
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _warp_quiet():
+    """Silence Warp's start-up banner and module-load messages for the whole session."""
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING
+    yield
+
+
+@pytest.fixture
+def small_beam():
+    """A 4x2x2-cell beam of 0.2 m x 0.05 m x 0.05 m (5 tetrahedra per cell)."""
+    return wcut.beam(4, 2, 2, size=(0.2, 0.05, 0.05))
+
+
+@pytest.fixture
+def write_scene():
+    """``write_scene(directory, text, name="scene.toml")`` writes a (dedented) scene file; returns its path."""
+
+    def write(directory, text: str, name: str = "scene.toml") -> Path:
+        path = Path(directory) / name
+        path.write_text(textwrap.dedent(text), encoding="utf-8")
+        return path
+
+    return write
+
+
+@pytest.fixture
+def tiny_scene(tmp_path, write_scene):
+    """Path of :data:`TINY_SCENE` written to tmp_path as ``tiny.toml``."""
+    return write_scene(tmp_path, TINY_SCENE, "tiny.toml")

@@ -1,0 +1,193 @@
+"""Tests of the ``wcut`` command (wcut.cli.main, run in-process) and its installed entry point."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+
+import wcut
+from wcut.cli import main
+from wcut.usd import validate_usd
+
+
+def _listing(directory: Path) -> list[str]:
+    """Every file and directory under ``directory`` (hidden temporary files included)."""
+    return sorted(str(p.relative_to(directory)) for p in directory.rglob("*"))
+
+
+def _fails_with_one_line(capsys, argv, *words) -> str:
+    """Run ``wcut argv``: exit status 2, one ``wcut: error:`` line on stderr containing ``words``."""
+    assert main(argv) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    assert len(lines) == 1, captured.err
+    assert lines[0].startswith("wcut: error: "), lines[0]
+    for word in words:
+        assert word in lines[0], lines[0]
+    return lines[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# help and version
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"wcut {wcut.__version__}"
+
+
+def test_version_matches_the_installed_distribution():
+    from importlib.metadata import version
+
+    assert version("wcut") == wcut.__version__
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["--help"], ["usage: wcut", "run", "bench", "--version"]),
+        (["run", "--help"], ["usage: wcut run", "SCENE.toml", "--output", "--frames", "--quiet"]),
+        (["bench", "--help"], ["usage: wcut bench", "--json", "--quiet"]),
+    ],
+)
+def test_help(capsys, argv, words):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    for word in words:
+        assert word in out
+
+
+def test_no_command_prints_help_and_fails(capsys):
+    assert main([]) == 2
+    assert "usage: wcut" in capsys.readouterr().out
+
+
+def test_unknown_command_is_an_argparse_error(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["fly"])
+    assert info.value.code == 2
+    assert "invalid choice" in capsys.readouterr().err
+
+
+def test_entry_point_is_installed():
+    exe = Path(sys.executable).with_name("wcut")
+    exe = str(exe) if exe.exists() else shutil.which("wcut")
+    assert exe, "the wcut console script is not installed"
+    proc = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"wcut {wcut.__version__}"
+
+
+# ---------------------------------------------------------------------------------------------
+# wcut run
+
+
+@pytest.mark.parametrize("ext", [".usdc", ".usda"])
+def test_run_writes_a_valid_animation(tmp_path, tiny_scene, capsys, ext):
+    out = tmp_path / "out" / f"anim{ext}"
+    assert main(["run", str(tiny_scene), "-o", str(out), "--frames", "2", "--quiet"]) == 0
+    captured = capsys.readouterr()
+    lines = captured.out.splitlines()
+    assert "frames: 2" in lines
+    assert any(re.fullmatch(r"mean step: \d+\.\d+ ms \(8 steps\)", line) for line in lines), lines
+    assert "nodes: 45" in lines
+    assert "elements: 80" in lines
+    assert f"wrote {out}" in lines
+    assert captured.err == ""  # --quiet: no progress bar
+    assert _listing(out.parent) == [out.name]
+    assert validate_usd(out) == []
+
+
+def test_run_default_output_comes_from_the_scene(tmp_path, tiny_scene, write_scene, capsys, monkeypatch):
+    text = tiny_scene.read_text() + '\n[output]\npath = "result.usda"\n'
+    scene = write_scene(tmp_path, text, "with_output.toml")
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", str(scene), "--frames", "1", "--quiet"]) == 0
+    assert "frames: 1" in capsys.readouterr().out.splitlines()
+    assert validate_usd(tmp_path / "result.usda") == []
+
+
+def _write_flat_mesh(path: Path):
+    """A .vtu file meshio reads whose second element is flat (vertex 4 on the edge 1-2)."""
+    x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0.5, 0]], dtype=np.float64)
+    meshio.write(path, meshio.Mesh(x, [("tetra", np.array([[0, 1, 2, 3], [1, 2, 3, 4]]))]))
+
+
+def _write_surface_mesh(path: Path):
+    """A .vtu file with triangles only."""
+    beam = wcut.beam(1, 1, 1)
+    meshio.write(path, meshio.Mesh(beam.vertices, [("triangle", beam.boundary().triangles)]))
+
+
+@pytest.mark.parametrize(
+    "case",
+    ["unknown-key", "missing-scene", "bad-extension", "flat-mesh", "surface-mesh", "missing-mesh", "empty-box"],
+)
+def test_run_bad_input_fails_cleanly(tmp_path, tiny_scene, write_scene, capsys, case):
+    out_dir = tmp_path / "out"
+    out = out_dir / "anim.usdc"
+    scene = tiny_scene
+    words: tuple[str, ...]
+    if case == "unknown-key":
+        scene = write_scene(tmp_path, tiny_scene.read_text().replace("youngs_modulus", "youngs_modulos"), "typo.toml")
+        words = ("typo.toml", "material.youngs_modulos", "unknown key")
+    elif case == "missing-scene":
+        scene = tmp_path / "absent.toml"
+        words = (str(scene), "no such scene file")
+    elif case == "bad-extension":
+        out = out_dir / "anim.txt"
+        words = ("anim.txt", "unsupported extension '.txt'")
+    elif case in ("flat-mesh", "surface-mesh", "missing-mesh"):
+        mesh_text = '[mesh]\npath = "organ.vtu"\n[simulation]\nduration = 0.1\n'
+        scene = write_scene(tmp_path, mesh_text, "organ.toml")
+        if case == "flat-mesh":
+            _write_flat_mesh(tmp_path / "organ.vtu")
+            words = ("organ.vtu", "element 1", "degenerate")
+        elif case == "surface-mesh":
+            _write_surface_mesh(tmp_path / "organ.vtu")
+            words = ("organ.vtu", "no tetrahedra")
+        else:
+            words = (str(tmp_path / "organ.vtu"), "no such file")
+    else:  # a fixed box that holds no vertex
+        text = tiny_scene.read_text().replace("[[-0.001, -1.0, -1.0], [0.001, 1.0, 1.0]]", "[[5, 5, 5], [6, 6, 6]]")
+        scene = write_scene(tmp_path, text, "empty_box.toml")
+        words = ("empty_box.toml", "constraints.fixed_boxes[0]", "contains no vertex")
+    before = _listing(tmp_path)
+    _fails_with_one_line(capsys, ["run", str(scene), "-o", str(out), "--frames", "2", "--quiet"], *words)
+    assert not out.exists()
+    assert _listing(tmp_path) == before  # no output, no temporary file, no output directory
+
+
+def test_multi_line_error_messages_are_joined(tmp_path, write_scene, capsys):
+    scene = write_scene(tmp_path, '[mesh]\ngenerator = "beam"\ncells = [1, 1, 1]\n[material\n', "broken.toml")
+    line = _fails_with_one_line(capsys, ["run", str(scene), "-o", str(tmp_path / "x.usdc")], "not valid TOML")
+    assert "  " not in line
+
+
+@pytest.mark.parametrize("frames", ["0", "-1", "abc", "1.5", ""])
+def test_bad_frame_counts_are_rejected_by_argparse(tmp_path, tiny_scene, capsys, frames):
+    out = tmp_path / "anim.usdc"
+    with pytest.raises(SystemExit) as info:
+        main(["run", str(tiny_scene), "-o", str(out), "--frames", frames])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--frames" in err and "positive integer" in err
+    assert not out.exists()
+
+
+def test_run_requires_a_scene(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["run"])
+    assert info.value.code == 2
+    assert "SCENE.toml" in capsys.readouterr().err

@@ -1,0 +1,169 @@
+"""Benchmarks behind ``wcut bench``: kernel costs and a full step on SOFA's benchmark beams,
+side by side with a scipy reference of the same step (``wcut.reference``).
+
+Each scene is a beam of ``nx * ny * nz`` hexahedra split into five tetrahedra each, clamped at
+one end, under gravity, with 20 conjugate-gradient iterations per step (tolerance 0, so every
+iteration runs). Times are medians of repeated runs measured in this one process, so ratios
+compare like with like on a shared, noisy machine.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from .io import atomic_path
+from .mesh import beam
+from .model import Model
+from .solver import SolverCorotational
+
+#: name, hexahedra along x, y, z, and beam size (m): SOFA's TetrahedronFEMForceField beams
+SCENES = (("beam_10x10x40", (10, 10, 40), (0.1, 0.1, 0.4)), ("beam_16x16x76", (16, 16, 76), (0.16, 0.16, 0.76)))
+CG_ITERATIONS = 20
+DT = 0.01
+
+
+def _median_seconds(fn, repeats: int, warmup: int = 1) -> float:
+    for _ in range(warmup):
+        fn()
+    samples = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        samples.append(time.perf_counter() - start)
+    return statistics.median(samples)
+
+
+def _scene_model(cells, size, device=None):
+    mesh = beam(*cells, size=size)
+    fixed = mesh.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9))
+    model = Model(mesh, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3, rayleigh_mass=0.1,
+                  rayleigh_stiffness=0.01, gravity=(9.81, 0.0, 0.0), fixed=fixed, device=device)
+    return mesh, model, fixed
+
+
+def _warp_optim_cg(solver: SolverCorotational, dt: float):
+    """The same system solved by warp.optim.linear.cg with a LinearOperator (same kernels)."""
+    from warp.optim import linear
+
+    from .kernels import cg, tet_p1
+
+    m, n, d = solver.model, solver.model.particle_count, solver.model.device
+    scale = dt * dt + dt * m.rayleigh_stiffness
+    rz_one, zero = wp.array([1.0], dtype=float, device=d), wp.zeros(1, dtype=float, device=d)
+
+    def matvec(x, y, z, alpha, beta):
+        wp.launch(cg.operator_mass_axpby, n, inputs=[x, y, solver.inv_diagonal, solver.mass_scale, alpha, beta],
+                  outputs=[z], device=d)
+        wp.launch(tet_p1.tet_matvec, m.tet_count, device=d,
+                  inputs=[m.tet_indices, solver.tet_rotated_gradients, m.tet_stiffness, x, alpha * scale, 0,
+                          rz_one, zero], outputs=[z])
+        wp.launch(cg.operator_restore_fixed_rows, n, inputs=[x, y, solver.inv_diagonal, alpha, beta], outputs=[z],
+                  device=d)
+
+    def precondition(x, y, z, alpha, beta):
+        wp.launch(cg.jacobi_axpby, n, inputs=[x, y, solver.inv_diagonal, alpha, beta], outputs=[z], device=d)
+
+    A = linear.LinearOperator((3 * n, 3 * n), wp.float32, d, matvec)
+    M = linear.LinearOperator((3 * n, 3 * n), wp.float32, d, precondition)
+    x = wp.zeros(n, dtype=wp.vec3, device=d)
+    functor = linear.cg(A, solver.rhs, x, tol=0.0, maxiter=CG_ITERATIONS, M=M, check_every=0,
+                        use_cuda_graph=False, run=False)
+
+    def solve():
+        x.zero_()
+        functor(A, solver.rhs, x)
+    return solve
+
+
+def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats: int = 3, device=None) -> dict:
+    """Time one benchmark beam; returns the JSON record of the issue's contract plus details."""
+    from .kernels import rotation, tet_p1
+    from .reference import ScipyCorotationalStep
+
+    mesh, model, fixed = _scene_model(cells, size, device)
+    solver = SolverCorotational(model, cg_iterations=CG_ITERATIONS, cg_tolerance=0.0)
+    state, scratch, control = model.state(), model.state(), model.control()
+    for _ in range(10):  # bend it a little so rotations are not the identity
+        solver.step(state, scratch, control, DT)
+        state, scratch = scratch, state
+
+    step_s = _median_seconds(lambda: (solver.step(state, scratch, control, DT), wp.synchronize_device(model.device)),
+                             repeats)
+    cg_fused_s = _median_seconds(lambda: ([c.launch() for c in solver._cg_commands],
+                                          wp.synchronize_device(model.device)), repeats)
+    cg_warp_s = _median_seconds(_warp_optim_cg(solver, DT), max(3, repeats // 4))
+
+    # rotation extraction alone, warm-started as in a step, and the SVD it is measured against
+    x = state.particle_q.numpy()[mesh.tets]
+    Ds = np.stack([x[:, 0] - x[:, 3], x[:, 1] - x[:, 3], x[:, 2] - x[:, 3]], axis=2)
+    F = wp.array(Ds @ model.tet_shape_gradients.numpy(), dtype=wp.mat33, device=model.device)
+    R = wp.empty(model.tet_count, dtype=wp.mat33, device=model.device)
+    rot = wp.launch(rotation.extract_rotations, model.tet_count, device=model.device, record_cmd=True,
+                    inputs=[F, state.tet_rotation, solver.rotation_iterations, solver.rotation_tolerance], outputs=[R])
+    svd = wp.launch(rotation.extract_rotations_svd, model.tet_count, device=model.device, record_cmd=True,
+                    inputs=[F], outputs=[R])
+    rotation_s = _median_seconds(rot.launch, repeats)
+    svd_s = _median_seconds(svd.launch, repeats)
+    y = wp.zeros(model.particle_count, dtype=wp.vec3, device=model.device)
+    one, zero = wp.array([1.0], dtype=float, device=model.device), wp.zeros(1, dtype=float, device=model.device)
+    matvec = wp.launch(tet_p1.tet_matvec, model.tet_count, device=model.device, record_cmd=True,
+                       inputs=[model.tet_indices, solver.tet_rotated_gradients, model.tet_stiffness,
+                               state.particle_qd, 1.0, 0, one, zero], outputs=[y])
+    matvec_s = _median_seconds(matvec.launch, repeats * 5)
+
+    ref = ScipyCorotationalStep(mesh.vertices, mesh.tets, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3,
+                                rayleigh_mass=0.1, rayleigh_stiffness=0.01, gravity=(9.81, 0.0, 0.0), fixed=fixed)
+    xq, vq = state.particle_q.numpy().astype(np.float64), state.particle_qd.numpy().astype(np.float64)
+    reference_s = _median_seconds(lambda: ref.step(xq, vq, DT, cg_iterations=CG_ITERATIONS, cg_tolerance=1e-30),
+                                  reference_repeats)
+    per_element = 1e9 / model.tet_count
+    return {
+        "name": name,
+        "tets": model.tet_count,
+        "nodes": model.particle_count,
+        "step_ms": round(step_s * 1e3, 3),
+        "reference_step_ms": round(reference_s * 1e3, 3),
+        "speedup_vs_reference": round(reference_s / step_s, 2),
+        "rotation_ns_per_element": round(rotation_s * per_element, 2),
+        "rotation_svd_ns_per_element": round(svd_s * per_element, 2),
+        "matvec_ns_per_element": round(matvec_s * per_element, 2),
+        "cg_fused_ms": round(cg_fused_s * 1e3, 3),
+        "cg_warp_optim_ms": round(cg_warp_s * 1e3, 3),
+        "cg_iterations": CG_ITERATIONS,
+    }
+
+
+def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True, scenes=SCENES) -> dict:
+    """Run every benchmark scene, print a table and optionally write JSON (atomically)."""
+    records = []
+    for i, (name, cells, size) in enumerate(scenes):
+        if progress and sys.stderr.isatty():
+            print(f"[{i + 1}/{len(scenes)}] {name} ...", file=sys.stderr)
+        records.append(bench_scene(name, cells, size, repeats=5 if quick else 20, reference_repeats=1 if quick else 3))
+    result = {"device": str(wp.get_device()), "warp": wp.config.version, "scenes": records}
+    _print_table(records)
+    if json_path is not None:
+        with atomic_path(json_path) as tmp:
+            Path(tmp).write_text(json.dumps(result, indent=2) + "\n")
+        print(f"wrote {json_path}")
+    return result
+
+
+def _print_table(records) -> None:
+    columns = [("name", "scene"), ("tets", "tets"), ("nodes", "nodes"), ("step_ms", "step ms"),
+               ("reference_step_ms", "scipy ms"), ("speedup_vs_reference", "speedup"),
+               ("rotation_ns_per_element", "rot ns/el"), ("rotation_svd_ns_per_element", "svd ns/el"),
+               ("matvec_ns_per_element", "matvec ns/el"), ("cg_fused_ms", "cg fused ms"),
+               ("cg_warp_optim_ms", "cg warp.optim ms")]
+    rows = [[str(r[key]) for key, _ in columns] for r in records]
+    widths = [max(len(title), *(len(row[i]) for row in rows)) for i, (_, title) in enumerate(columns)]
+    print("  ".join(title.rjust(w) for (_, title), w in zip(columns, widths)))
+    for row in rows:
+        print("  ".join(cell.rjust(w) for cell, w in zip(row, widths)))
