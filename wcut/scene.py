@@ -105,7 +105,7 @@ _SCHEMA = {
     "constraints": {"fixed_indices": (_list_of(_integer), []), "fixed_boxes": (_list_of(_box), [])},
     "loads": {"gravity": (_vec3, [0.0, 0.0, -9.81]), "force": (None, [])},
     "solver": {"dt": (_number, 0.01), "cg_iterations": (_integer, 50), "cg_tolerance": (_number, 1.0e-5),
-               "rotation_iterations": (_integer, 8)},
+               "rotation_iterations": (_integer, 2)},
     "simulation": {"duration": (_number, 2.0), "fps": (_number, 30.0)},
     "output": {"path": (_string, None), "stress_colors": (_boolean, True), "up_axis": (_string, "Z")},
 }

@@ -35,14 +35,17 @@ class SolverCorotational:
         cg_iterations: maximum conjugate-gradient iterations per step.
         cg_tolerance: relative tolerance on the preconditioned residual,
             ``r.M^-1 r <= tol^2 b.M^-1 b``; 0 always runs ``cg_iterations``.
-        rotation_iterations: maximum polar-decomposition iterations per element and step.
+        rotation_iterations: maximum polar-decomposition (Newton) iterations per element and
+            step, warm-started from the last step. Two are as good as converging: on a swinging
+            beam (0.4 m of tip travel over 150 steps) the tip differs by 3e-8 m from a run
+            iterated to 1e-7 rad, float32 round-off; one iteration gives 1e-5 m.
         rotation_tolerance: stop the polar iteration when its correction is below this angle (rad).
 
     ``step`` allocates nothing: every array it touches is created here.
     """
 
     def __init__(self, model: Model, *, cg_iterations: int = 20, cg_tolerance: float = 1.0e-6,
-                 rotation_iterations: int = 8, rotation_tolerance: float = 1.0e-6):
+                 rotation_iterations: int = 2, rotation_tolerance: float = 1.0e-6):
         if cg_iterations < 1:
             raise SimulationError(f"cg_iterations must be at least 1, got {cg_iterations}")
         if not cg_tolerance >= 0.0:
