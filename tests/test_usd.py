@@ -162,7 +162,7 @@ def test_failed_export_leaves_no_temp_file(tmp_path):
     target.mkdir()  # os.replace cannot put a file over a directory
     writer = UsdAnimationWriter(target)
     writer.write_frame("tet", 0, TET_POINTS, TET_TRIS)
-    with pytest.raises((ExportError, OSError)):
+    with pytest.raises(ExportError, match="cannot write"):
         writer.close()
     assert _leftovers(tmp_path) == ["anim.usda"]
     assert target.is_dir() and not any(target.iterdir())

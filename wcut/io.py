@@ -27,7 +27,10 @@ def atomic_path(path: str | os.PathLike):
         raise ExportError(f"{path}: cannot write here: {exc.strerror or exc}") from exc
     try:
         yield tmp
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise ExportError(f"{path}: cannot write here: {exc.strerror or exc}") from None
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.remove(tmp)

@@ -46,14 +46,13 @@ from __future__ import annotations
 
 import math
 import operator
-import os
 import pathlib
-import secrets
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from wcut.errors import ExportError
+from wcut.io import atomic_path
 
 __all__ = ["UsdAnimationWriter", "stress_colors", "validate_usd"]
 
@@ -384,39 +383,17 @@ def _as_colors(colors, n_points: int, where: str) -> np.ndarray:
 
 def _export_atomically(layer, path: pathlib.Path) -> None:
     """Export ``layer`` to a temporary file beside ``path``, then rename it over ``path``."""
-    parent = path.parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ExportError(f"cannot create output directory {parent}: {exc}") from None
-    # Same extension at the end, so that pxr picks the same file format.
-    tmp = parent / f".{path.name}.tmp-{secrets.token_hex(8)}{path.suffix}"
-    try:
-        _export_layer(layer, tmp, path)
-        os.replace(tmp, path)
-    except BaseException:
-        _remove_quietly(tmp)
-        raise
-
-
-def _export_layer(layer, tmp: pathlib.Path, path: pathlib.Path) -> None:
     from pxr import Tf
 
     # A ".usd" file is crate unless told otherwise (USD_DEFAULT_FILE_FORMAT could say usda).
     args = {"format": "usdc"} if path.suffix.lower() == ".usd" else {}
-    try:
-        ok = layer.Export(str(tmp), comment="", args=args)
-    except Tf.ErrorException as exc:
-        raise ExportError(f"cannot write {path}: {exc}") from None
-    if not ok:
-        raise ExportError(f"cannot write {path}")
-
-
-def _remove_quietly(path: pathlib.Path) -> None:
-    try:
-        path.unlink(missing_ok=True)
-    except OSError:
-        pass  # already failing: keep the original error
+    with atomic_path(path) as tmp:  # keeps the extension, so pxr picks the same file format
+        try:
+            ok = layer.Export(str(tmp), comment="", args=args)
+        except Tf.ErrorException as exc:
+            raise ExportError(f"cannot write {path}: {exc}") from None
+        if not ok:
+            raise ExportError(f"cannot write {path}")
 
 
 # --------------------------------------------------------------------------------------------
