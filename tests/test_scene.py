@@ -62,7 +62,7 @@ def test_defaults_and_name_from_file(tmp_path, write_scene):
     assert scene.material == {"density": 1000.0, "youngs_modulus": 1.0e5, "poisson_ratio": 0.3}
     assert scene.loads["gravity"] == [0.0, 0.0, -9.81]
     assert scene.mesh["tets_per_hex"] == 5 and scene.mesh["origin"] == [0.0, 0.0, 0.0]
-    assert scene.output == {"path": None, "stress_colors": True, "up_axis": "Z"}
+    assert scene.output == {"path": None, "stress_colors": True, "stress_max": None, "up_axis": "Z"}
     assert scene.frame_count == 60  # 2 s at 30 fps
 
 
@@ -350,3 +350,21 @@ def test_run_scene_rejects_zero_frames(tmp_path, tiny_scene):
     with pytest.raises(SceneError, match="frames must be at least 1"):
         run_scene(load_scene(tiny_scene), tmp_path / "x.usdc", frames=0, progress=False)
     assert not (tmp_path / "x.usdc").exists()
+
+
+def test_stress_colours_share_one_scale_over_the_whole_run(tmp_path, tiny_scene):
+    """Frame 0 is at rest: on the run's common scale it must be at the bottom of the colour map."""
+    from pxr import Usd, UsdGeom
+
+    from wcut.usd import stress_colors
+
+    scene = load_scene(tiny_scene)
+    result = run_scene(scene, tmp_path / "anim.usda", frames=3, progress=False)
+    stage = Usd.Stage.Open(str(result.output))
+    mesh = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
+    colors = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("displayColor")
+    lowest = stress_colors([0.0, 1.0])[0]
+    first = np.asarray(colors.Get(Usd.TimeCode(0)))
+    last = np.asarray(colors.Get(Usd.TimeCode(3)))
+    np.testing.assert_allclose(first, np.broadcast_to(lowest, first.shape), atol=0.02)
+    assert np.abs(last - lowest).max() > 0.2  # the clamped, sagging beam is stressed

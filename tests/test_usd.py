@@ -323,3 +323,16 @@ def test_stress_colors_nan_constant_and_clamping():
         stress_colors([1.0, 2.0], vmin=2.0, vmax=1.0)
     with pytest.raises(ExportError):
         stress_colors(np.zeros((2, 2)))
+
+
+def test_written_file_gets_the_usual_permissions(tmp_path):
+    import os
+
+    umask = os.umask(0o022)
+    try:
+        path = tmp_path / "a.usdc"
+        with UsdAnimationWriter(path) as writer:
+            writer.write_frame("tet", 0, TET_POINTS, TET_TRIS)
+    finally:
+        os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o644

@@ -28,6 +28,9 @@ def atomic_path(path: str | os.PathLike):
     try:
         yield tmp
         try:
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes the file private; give it the usual mode
             os.replace(tmp, path)
         except OSError as exc:
             raise ExportError(f"{path}: cannot write here: {exc.strerror or exc}") from None

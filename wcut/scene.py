@@ -19,7 +19,8 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
     [[springs]]     point = [x, y, z] or vertex = i; target = [x, y, z]; stiffness (N/m)
     [solver]        dt (s), cg_iterations, cg_tolerance, rotation_iterations
     [simulation]    duration (s), fps (frames per second written)
-    [output]        path, stress_colors (bool), up_axis ("Z" or "Y")
+    [output]        path, stress_colors (bool), stress_max (Pa: top of the colour scale; default:
+                    the largest von Mises stress of the run), up_axis ("Z" or "Y")
 """
 
 from __future__ import annotations
@@ -107,7 +108,8 @@ _SCHEMA = {
     "solver": {"dt": (_number, 0.01), "cg_iterations": (_integer, 50), "cg_tolerance": (_number, 1.0e-5),
                "rotation_iterations": (_integer, 2)},
     "simulation": {"duration": (_number, 2.0), "fps": (_number, 30.0)},
-    "output": {"path": (_string, None), "stress_colors": (_boolean, True), "up_axis": (_string, "Z")},
+    "output": {"path": (_string, None), "stress_colors": (_boolean, True), "stress_max": (_number, None),
+               "up_axis": (_string, "Z")},
 }
 _FORCE_SCHEMA = {"box": (_box, None), "total": (_vec3, None)}
 _SPRING_SCHEMA = {"point": (_vec3, None), "vertex": (_integer, None), "target": (_vec3, None),
@@ -205,6 +207,8 @@ def _parse(raw: dict, path: Path) -> Scene:
                        ("simulation.fps", sim["fps"])):
         if value <= 0:
             raise SceneError(f"{key}: must be positive, got {value}")
+    if out["stress_max"] is not None and out["stress_max"] <= 0:
+        raise SceneError(f"output.stress_max: must be positive, got {out['stress_max']}")
     if out["up_axis"] not in ("Y", "Z"):
         raise SceneError(f"output.up_axis: expected 'Y' or 'Z', got {out['up_axis']!r}")
     if "name" in raw:
@@ -310,30 +314,34 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     state, next_state = model.state(), model.state()
     surface = model.mesh.boundary()
     colored = scene.output["stress_colors"]
+    # Frames are kept until the end so that every frame is coloured on one stress scale.
+    points, stresses = [], []
 
-    def write(writer, frame):
-        points = state.particle_q.numpy()[surface.vertex_ids]
-        colors = None
+    def record():
+        points.append(state.particle_q.numpy()[surface.vertex_ids].copy())
         if colored:
-            colors = stress_colors(vertex_von_mises(model, state)[surface.vertex_ids], vmin=0.0)
-        writer.write_frame(scene.name, frame, points, surface.local_triangles, colors)
+            stresses.append(vertex_von_mises(model, state)[surface.vertex_ids])
 
     show = sys.stderr.isatty() if progress is None else progress
     bar = _progress(frames, show, scene.name)
     step_seconds = 0.0
-    with UsdAnimationWriter(output, fps=fps, up_axis=scene.output["up_axis"]) as writer:
-        write(writer, 0)
-        for frame in range(1, frames + 1):
-            start = time.perf_counter()
-            for _ in range(substeps):
-                solver.step(state, next_state, control, dt)
-                state, next_state = next_state, state
-            wp.synchronize_device(model.device)
-            step_seconds += time.perf_counter() - start
-            solver.check_finite()
-            write(writer, frame)
-            bar.update(1)
+    record()
+    for _ in range(frames):
+        start = time.perf_counter()
+        for _ in range(substeps):
+            solver.step(state, next_state, control, dt)
+            state, next_state = next_state, state
+        wp.synchronize_device(model.device)
+        step_seconds += time.perf_counter() - start
+        solver.check_finite()
+        record()
+        bar.update(1)
     bar.close()
+    stress_max = scene.output["stress_max"] or (max(float(s.max()) for s in stresses) if colored else 0.0)
+    with UsdAnimationWriter(output, fps=fps, up_axis=scene.output["up_axis"]) as writer:
+        for frame, frame_points in enumerate(points):
+            colors = stress_colors(stresses[frame], vmin=0.0, vmax=max(stress_max, 1e-30)) if colored else None
+            writer.write_frame(scene.name, frame, frame_points, surface.local_triangles, colors)
     return RunResult(frames=frames, steps=frames * substeps, mean_step_ms=1e3 * step_seconds / (frames * substeps),
                      nodes=model.particle_count, elements=model.tet_count, output=output)
 
