@@ -27,7 +27,9 @@ import warp as wp
 def polar_rotation(F: wp.mat33, q_start: wp.quat, max_iterations: int, tolerance: float):
     """Proper rotation maximising tr(R^T F), as a unit quaternion, warm-started at ``q_start``.
 
-    Stops when the update angle is at most ``tolerance`` (radians) or after ``max_iterations``.
+    Stops when the remaining angle error is estimated at most ``tolerance`` (radians): an update
+    below it, or a Newton update ``d`` with ``|d|^2`` below it, since Newton then leaves an
+    error of order ``|d|^2``; or after ``max_iterations``.
     """
     q = wp.normalize(q_start)
     for _ in range(max_iterations):
@@ -42,8 +44,9 @@ def polar_rotation(F: wp.mat33, q_start: wp.quat, max_iterations: int, tolerance
                      h01, h11, -0.5 * (A[1, 2] + A[2, 1]),
                      -0.5 * (A[0, 2] + A[2, 0]), -0.5 * (A[1, 2] + A[2, 1]), t - A[2, 2])
         det = wp.determinant(H)
+        newton = h00 > 0.0 and h00 * h11 - h01 * h01 > 0.0 and det > 1.0e-12 * t * t * t
         d = w / (wp.abs(t) + 1.0e-9)
-        if h00 > 0.0 and h00 * h11 - h01 * h01 > 0.0 and det > 1.0e-12 * t * t * t:
+        if newton:
             d = wp.inverse(H) * w
         angle_sq = wp.dot(d, d)
         if angle_sq <= tolerance * tolerance:
@@ -53,6 +56,8 @@ def polar_rotation(F: wp.mat33, q_start: wp.quat, max_iterations: int, tolerance
         # second-order retraction: normalize(1, d/2) is exp(d) up to O(|d|^3), which keeps
         # Newton's quadratic convergence without the sine and cosine of an axis-angle update
         q = wp.normalize(q * wp.quat(0.5 * d[0], 0.5 * d[1], 0.5 * d[2], 1.0))
+        if newton and angle_sq <= tolerance:
+            break  # quadratic convergence: the error left after this step is about |d|^2
     return q
 
 
