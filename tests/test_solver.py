@@ -208,3 +208,26 @@ def test_divergence_is_reported():
     solver.step(state, model.state(), None, 0.01)
     with pytest.raises(SimulationError, match="diverged"):
         solver.check_finite()
+
+
+def test_step_allocates_nothing():
+    import io
+    import re
+
+    mesh = wcut.beam(4, 2, 2, size=(0.2, 0.05, 0.05))
+    model = Model(mesh, fixed=[0, 1, 2], springs=Springs.at_vertices([40], 10.0), rayleigh_mass=0.1)
+    solver = SolverCorotational(model, cg_iterations=10)
+    a, b, control = model.state(), model.state(), model.control()
+    report = io.StringIO()
+    with wp.ScopedMemoryTracker("step", print=False) as tracker:
+        for _ in range(3):  # the first step records the conjugate-gradient launches
+            solver.step(a, b, control, 0.01)
+            a, b = b, a
+        tracker.report(file=report)
+    assert not re.search(r"^\s+(cpu|cuda:\d+)\s+\d+ \(", report.getvalue(), re.MULTILINE), report.getvalue()
+    # the tracker does see allocations (the assertion above could fail)
+    report = io.StringIO()
+    with wp.ScopedMemoryTracker("control", print=False) as tracker:
+        model.state()
+        tracker.report(file=report)
+    assert re.search(r"^\s+cpu\s+\d+ \(", report.getvalue(), re.MULTILINE)
