@@ -6,7 +6,8 @@ each fusing a vector update with the dot product the next one needs:
 :func:`cg_direction` (p). The scalars live on the device, one slot per iteration
 (``rz[k]``, ``pq[k]``), so an iteration never reads back to the host and the whole loop can be
 recorded once (CPU) or captured in a graph (CUDA). Convergence is checked on the device: once
-``rz[k] <= threshold`` (``threshold = tol^2 * b.M^-1 b``) every later launch returns at once.
+``rz[k] <= threshold`` (``threshold = tol^2 * b.D^-1 b``, D the diagonal of A) every later
+launch returns at once.
 Fixed vertices have a zero preconditioner; their r, z, p stay zero.
 
 (Folding ``p.q`` into the element product, to save :func:`cg_apply_mass`, was measured slower
@@ -28,11 +29,12 @@ def cg_init(
     z: wp.array(dtype=wp.vec3),
     p: wp.array(dtype=wp.vec3),
     rz: wp.array(dtype=float),
-    threshold: wp.array(dtype=float),
+    norms: wp.array(dtype=float),
 ):
-    """r = b - A x (q holds the stiffness part of A x), z = M^-1 r, p = z, rz[0] = r.z.
+    """r = b - A x (q holds the stiffness part of A x), z = D^-1 r, p = z, rz[0] = r.z.
 
-    Also sums ``threshold[0] = tolerance_sq * b.M^-1 b`` and clears ``q``.
+    Also sums ``norms[1] = b.D^-1 b`` and the convergence threshold
+    ``norms[0] = tolerance_sq * b.D^-1 b``, and clears ``q``.
     """
     i = wp.tid()
     d = inv_diagonal[i]
@@ -52,7 +54,9 @@ def cg_init(
     p[i] = zi
     q[i] = zero
     wp.atomic_add(rz, 0, wp.dot(ri, zi))
-    wp.atomic_add(threshold, 0, tolerance_sq * wp.dot(b, wp.cw_mul(d, b)))
+    bb = wp.dot(b, wp.cw_mul(d, b))
+    wp.atomic_add(norms, 0, tolerance_sq * bb)
+    wp.atomic_add(norms, 1, bb)
 
 
 @wp.kernel
@@ -91,7 +95,7 @@ def cg_update(
     q: wp.array(dtype=wp.vec3),
     rz: wp.array(dtype=float),
 ):
-    """x += alpha p, r -= alpha q, z = M^-1 r, rz[k+1] = r.z, q = 0 (alpha = rz[k] / pq[k])."""
+    """x += alpha p, r -= alpha q, z = D^-1 r, rz[k+1] = r.z, q = 0 (alpha = rz[k] / pq[k])."""
     i = wp.tid()
     if rz[k] <= threshold[0]:
         if i == 0:

@@ -12,8 +12,10 @@ polar decomposition ``F = R S`` of the deformation gradient. Two methods:
   ``A = I``; near a stretched element it converges linearly (error times ~1/3 per iteration),
   Newton's quadratically, so a warm-started step needs one or two iterations. Where the
   Hessian is not negative definite (far from the maximiser: inverted or cold-started) the
-  update falls back to Mueller's step, which always ascends. It never produces a reflection
-  and stays defined for flat (rank-deficient) and inverted ``F``.
+  update falls back to Mueller's step, which always ascends, and when ``tr(A) < 0`` (more than a
+  quarter turn from the warm start, where at exactly a half turn the gradient vanishes) it first
+  jumps by the half turn about the frame axis that raises the trace most. It never produces a
+  reflection and stays defined for flat (rank-deficient) and inverted ``F``.
 - :func:`svd_rotation`, the reference it is measured against: ``R = U V^T`` from the SVD
   with the column of ``U`` of the smallest singular value negated when ``det(U V^T) < 0``
   (the closest proper rotation, as in invertible FEM). For ``det F > 0`` both give the polar
@@ -34,8 +36,23 @@ def polar_rotation(F: wp.mat33, q_start: wp.quat, max_iterations: int, tolerance
     q = wp.normalize(q_start)
     for _ in range(max_iterations):
         A = wp.transpose(wp.quat_to_matrix(q)) * F  # F in the current frame
-        w = wp.vec3(A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1])
         t = wp.trace(A)
+        if t < 0.0:
+            # More than a quarter turn away (e.g. an object rotated by 180 degrees since the
+            # warm start, where the gradient vanishes): jump by the half turn about the frame
+            # axis that raises the trace most, tr(Rot_i(pi)^T A) = 2 A_ii - tr(A).
+            k = int(0)
+            if A[1, 1] > A[k, k]:
+                k = 1
+            if A[2, 2] > A[k, k]:
+                k = 2
+            if 2.0 * A[k, k] - t > t:
+                axis = wp.vec3(0.0)
+                axis[k] = 1.0
+                q = wp.normalize(q * wp.quat(axis[0], axis[1], axis[2], 0.0))
+                A = wp.transpose(wp.quat_to_matrix(q)) * F
+                t = wp.trace(A)
+        w = wp.vec3(A[2, 1] - A[1, 2], A[0, 2] - A[2, 0], A[1, 0] - A[0, 1])
         # H = tr(A) I - sym(A): positive definite near the maximiser (leading minors > 0)
         h00 = t - A[0, 0]
         h11 = t - A[1, 1]

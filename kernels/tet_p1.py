@@ -1,6 +1,6 @@
 """Corotational linear tetrahedra (P1): forces, system-matrix product, stress.
 
-Notation (thesis 3.2): node 3 of each element is the local origin; ``tet_shape_gradients``
+Notation (thesis 3.2): node 3 of each element is the local origin; ``tet_poses``
 holds ``Dm^{-1}`` with ``Dm = [X0-X3 | X1-X3 | X2-X3]``, so its row ``l`` is the constant
 shape-function gradient ``grad N_l`` (l = 0, 1, 2; ``grad N_3 = -sum``), in 1/m.
 ``tet_stiffness`` holds ``(V mu, V lambda)`` in N*m: rest volume times the Lame parameters.
@@ -39,7 +39,7 @@ def scatter_columns(t: wp.vec4i, F: wp.mat33, y: wp.array(dtype=wp.vec3)):
 @wp.kernel
 def tet_forces(
     tet_indices: wp.array(dtype=wp.vec4i),
-    tet_shape_gradients: wp.array(dtype=wp.mat33),
+    tet_poses: wp.array(dtype=wp.mat33),
     tet_stiffness: wp.array(dtype=wp.vec2),
     particle_q: wp.array(dtype=wp.vec3),
     particle_qd: wp.array(dtype=wp.vec3),
@@ -74,7 +74,7 @@ def tet_forces(
     t = tet_indices[e]
     x3 = particle_q[t[3]]
     Ds = wp.matrix_from_cols(particle_q[t[0]] - x3, particle_q[t[1]] - x3, particle_q[t[2]] - x3)
-    Dm_inv = tet_shape_gradients[e]
+    Dm_inv = tet_poses[e]
     q = polar_rotation(Ds * Dm_inv, tet_rotation_in[e], rotation_iterations, rotation_tolerance)
     tet_rotation_out[e] = q
     g = Dm_inv * wp.transpose(wp.quat_to_matrix(q))  # row l: (R grad N_l)^T
@@ -133,7 +133,7 @@ def tet_matvec(
 @wp.kernel
 def tet_stress(
     tet_indices: wp.array(dtype=wp.vec4i),
-    tet_shape_gradients: wp.array(dtype=wp.mat33),
+    tet_poses: wp.array(dtype=wp.mat33),
     tet_stiffness: wp.array(dtype=wp.vec2),
     tet_rest_volume: wp.array(dtype=float),
     tet_rotation: wp.array(dtype=wp.quat),
@@ -148,7 +148,7 @@ def tet_stress(
     Ds = wp.matrix_from_cols(particle_q[t[0]] - x3, particle_q[t[1]] - x3, particle_q[t[2]] - x3)
     R = wp.quat_to_matrix(tet_rotation[e])
     c = tet_stiffness[e] / tet_rest_volume[e]
-    s = hooke(wp.transpose(R) * Ds * tet_shape_gradients[e] - wp.identity(3, float), c[0], c[1])
+    s = hooke(wp.transpose(R) * Ds * tet_poses[e] - wp.identity(3, float), c[0], c[1])
     tet_cauchy_stress[e] = R * s * wp.transpose(R)
     d = s - (wp.trace(s) / 3.0) * wp.identity(3, float)
     tet_von_mises[e] = wp.sqrt(1.5 * wp.ddot(d, d))

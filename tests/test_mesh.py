@@ -300,13 +300,36 @@ def test_load_ignores_other_cells_and_drops_their_vertices(tmp_path, small_beam)
     assert np.array_equal(loaded.tets, small_beam.tets)
 
 
-def test_load_compacts_unreferenced_vertices_in_the_middle(tmp_path):
+def test_load_rejects_a_vertex_no_cell_uses(tmp_path):
     x = np.vstack([TET_X[:2], [[7.0, 7.0, 7.0]], TET_X[2:]])
     path = tmp_path / "gap.vtu"
     meshio.write(path, meshio.Mesh(x, [("tetra", np.array([[0, 1, 3, 4], [1, 3, 4, 5]]))]))
+    with pytest.raises(MeshError, match="gap.vtu: vertex 2 is not used by any cell"):
+        TetMesh.load(path)
+
+
+def test_load_drops_vertices_of_other_cells_and_keeps_the_file_numbering(tmp_path):
+    x = np.vstack([TET_X[:2], [[7.0, 7.0, 7.0]], TET_X[2:]])
+    path = tmp_path / "with_line.vtu"
+    meshio.write(path, meshio.Mesh(x, [("tetra", np.array([[0, 1, 3, 4], [1, 3, 4, 5]])),
+                                       ("line", np.array([[2, 0]]))]))
     loaded = TetMesh.load(path)
     assert np.allclose(loaded.vertices, TET_X)
     assert np.array_equal(loaded.tets, TWO_TETS)
+    assert loaded.source_vertex_ids.tolist() == [0, 1, 3, 4, 5]
+    assert [loaded.vertex_from_source(i) for i in range(7)] == [0, 1, -1, 2, 3, 4, -1]
+
+
+def test_repeated_element_is_rejected():
+    with pytest.raises(MeshError, match="element 1 repeats element 0"):
+        TetMesh(TET_X[:4], [[0, 1, 2, 3], [1, 0, 3, 2]])
+
+
+def test_overlapping_elements_are_rejected():
+    """Two elements on the same side of a shared face: the apex mirrored back over the face."""
+    base = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 1.0], [0.3, 0.1, 0.5]], dtype=float)
+    with pytest.raises(MeshError, match="overlaps"):
+        TetMesh(base, [[0, 1, 2, 3], [0, 1, 2, 4]])
 
 
 def test_load_reorients_inverted_elements(tmp_path):

@@ -50,7 +50,7 @@ def test_example_scene_loads():
     assert scene.simulation == {"duration": 3.0, "fps": 30.0}
     assert scene.output["path"] == "beam_sag.usdc" and scene.output["stress_colors"] is True
     assert scene.frame_count == 90
-    assert scene.forces == [] and scene.springs == []
+    assert scene.forces == [] and scene.attachments == []
     mesh = build_mesh(scene)
     assert (mesh.vertex_count, mesh.tet_count) == (21 * 5 * 5, 5 * 20 * 4 * 4)
 
@@ -138,15 +138,15 @@ def test_bad_mesh_section(tmp_path, write_scene, mesh_table, key, words):
 @pytest.mark.parametrize(
     "extra, key, words",
     [
-        ("[[springs]]\npoint = [0.1, 0.02, 0.02]\nvertex = 3\ntarget = [0, 0, 0]\nstiffness = 10.0\n",
-         "springs[0]", "exactly one of point and vertex"),
-        ("[[springs]]\ntarget = [0, 0, 0]\nstiffness = 10.0\n", "springs[0]", "exactly one of point and vertex"),
-        ("[[springs]]\nvertex = 3\nstiffness = 10.0\n", "springs[0].target", "missing"),
-        ("[[springs]]\nvertex = 3\ntarget = [0, 0, 0]\n", "springs[0].stiffness", "missing"),
-        ("[[springs]]\nvertex = 3\ntarget = [0, 0, 0]\nstiffness = 1.0\nanchor = 2\n", "springs[0].anchor",
+        ("[[attachments]]\npoint = [0.1, 0.02, 0.02]\nvertex = 3\ntarget = [0, 0, 0]\nstiffness = 10.0\n",
+         "attachments[0]", "exactly one of point and vertex"),
+        ("[[attachments]]\ntarget = [0, 0, 0]\nstiffness = 10.0\n", "attachments[0]", "exactly one of point and vertex"),
+        ("[[attachments]]\nvertex = 3\nstiffness = 10.0\n", "attachments[0].target", "missing"),
+        ("[[attachments]]\nvertex = 3\ntarget = [0, 0, 0]\n", "attachments[0].stiffness", "missing"),
+        ("[[attachments]]\nvertex = 3\ntarget = [0, 0, 0]\nstiffness = 1.0\nanchor = 2\n", "attachments[0].anchor",
          "unknown key"),
-        ("[[springs]]\nvertex = 3\ntarget = [0, 0]\nstiffness = 1.0\n", "springs[0].target", "three numbers"),
-        ("springs = 5\n", "springs", "array of tables"),
+        ("[[attachments]]\nvertex = 3\ntarget = [0, 0]\nstiffness = 1.0\n", "attachments[0].target", "three numbers"),
+        ("attachments = 5\n", "attachments", "array of tables"),
         ("[[loads.force]]\nbox = [[0, 0, 0], [1, 1, 1]]\n", "loads.force[0].total", "missing"),
         ("[[loads.force]]\ntotal = [0, 0, -1]\n", "loads.force[0].box", "missing"),
         ("[[loads.force]]\nbox = [[0, 0, 0], [1, 1, 1]]\ntotal = [0, 0, -1]\nspread = 1\n",
@@ -154,8 +154,8 @@ def test_bad_mesh_section(tmp_path, write_scene, mesh_table, key, words):
         ("[loads.force]\nbox = [[0, 0, 0], [1, 1, 1]]\ntotal = [0, 0, -1]\n", "loads.force", "array of tables"),
     ],
 )
-def test_bad_springs_and_forces(tmp_path, write_scene, extra, key, words):
-    text = extra + MINIMAL if extra.startswith("springs =") else MINIMAL + extra
+def test_bad_attachments_and_forces(tmp_path, write_scene, extra, key, words):
+    text = extra + MINIMAL if extra.startswith("attachments =") else MINIMAL + extra
     message = _scene_error(tmp_path, write_scene, text)
     assert f"{key}:" in message and words in message, message
 
@@ -210,7 +210,7 @@ def test_fixed_boxes_fix_exactly_the_vertices_inside(tmp_path, write_scene):
     )
     scene = load_scene(write_scene(tmp_path, text))
     mesh = build_mesh(scene)
-    model, _ = build_model(scene, mesh=mesh)
+    model, _, _ = build_model(scene, mesh=mesh)
     x = mesh.vertices
     expected = (np.abs(x[:, 0]) < 1e-9) | ((np.abs(x[:, 0] - 0.2) < 1e-9) & (np.abs(x[:, 2] - 0.05) < 1e-9))
     expected[22] = True
@@ -235,8 +235,7 @@ def test_forces_are_spread_evenly(tmp_path, write_scene):
     )
     scene = load_scene(write_scene(tmp_path, text))
     mesh = build_mesh(scene)
-    _, control = build_model(scene, mesh=mesh)
-    f = control.particle_f.numpy().astype(np.float64)
+    _, _, f = build_model(scene, mesh=mesh)
     assert f.shape == (mesh.vertex_count, 3)
     assert np.allclose(f.sum(axis=0), [1.5, 0.3, -0.9], atol=1e-6)
     end = mesh.vertices_in_box((0.199, -1, -1), (0.201, 1, 1))
@@ -255,17 +254,17 @@ def test_force_box_without_vertices_is_an_error(tmp_path, write_scene):
 
 
 @pytest.mark.parametrize("point", [(0.1, 0.025, 0.025), (0.013, 0.041, 0.007), (0.187, 0.003, 0.032)])
-def test_spring_at_a_point_has_barycentric_weights(tmp_path, write_scene, point):
+def test_attachment_at_a_point_has_barycentric_weights(tmp_path, write_scene, point):
     text = MINIMAL + (
-        f"[[springs]]\npoint = [{point[0]}, {point[1]}, {point[2]}]\ntarget = [0.3, 0.0, 0.1]\nstiffness = 25.0\n"
-        "[[springs]]\nvertex = 44\ntarget = [0.25, 0.05, 0.05]\nstiffness = 5.0\n"
+        f"[[attachments]]\npoint = [{point[0]}, {point[1]}, {point[2]}]\ntarget = [0.3, 0.0, 0.1]\nstiffness = 25.0\n"
+        "[[attachments]]\nvertex = 44\ntarget = [0.25, 0.05, 0.05]\nstiffness = 5.0\n"
     )
     scene = load_scene(write_scene(tmp_path, text))
     mesh = build_mesh(scene)
-    model, control = build_model(scene, mesh=mesh)
-    assert model.spring_count == 2
-    indices = model.spring_indices.numpy()
-    weights = model.spring_weights.numpy().astype(np.float64)
+    model, control, _ = build_model(scene, mesh=mesh)
+    assert model.attachment_count == 2
+    indices = model.attachment_indices.numpy()
+    weights = model.attachment_weights.numpy().astype(np.float64)
     # the point spring: weights of the element containing the point
     assert weights[0].sum() == pytest.approx(1.0, abs=1e-6)
     assert np.all(weights[0] >= -1e-7)
@@ -273,20 +272,20 @@ def test_spring_at_a_point_has_barycentric_weights(tmp_path, write_scene, point)
     assert sorted(indices[0].tolist()) in [sorted(t) for t in mesh.tets.tolist()]
     # the vertex spring: all weight on vertex 44 (the far corner)
     assert indices[1, 0] == 44 and weights[1, 0] == pytest.approx(1.0) and weights[1, 1:].sum() == 0.0
-    assert np.allclose(model.spring_stiffness.numpy(), [25.0, 5.0])
-    assert np.allclose(control.spring_target.numpy(), [[0.3, 0.0, 0.1], [0.25, 0.05, 0.05]])
-    assert np.allclose(model.spring_rest_points, [point, mesh.vertices[44]], atol=1e-9)
+    assert np.allclose(model.attachment_stiffness.numpy(), [25.0, 5.0])
+    assert np.allclose(control.attachment_target.numpy(), [[0.3, 0.0, 0.1], [0.25, 0.05, 0.05]])
+    assert np.allclose(model.attachment_rest_points.numpy(), [point, mesh.vertices[44]], atol=1e-9)
 
 
-def test_spring_vertex_out_of_range(tmp_path, write_scene):
-    text = MINIMAL + "[[springs]]\nvertex = 45\ntarget = [0, 0, 0]\nstiffness = 5.0\n"
-    with pytest.raises(SceneError, match="springs vertex 45 out of range 0..44"):
+def test_attachment_vertex_out_of_range(tmp_path, write_scene):
+    text = MINIMAL + "[[attachments]]\nvertex = 45\ntarget = [0, 0, 0]\nstiffness = 5.0\n"
+    with pytest.raises(SceneError, match=r"attachments\[0\]\.vertex: vertex 45 is not a vertex"):
         build_model(load_scene(write_scene(tmp_path, text)))
 
 
 def test_material_and_gravity_reach_the_model(tmp_path, write_scene):
     text = MINIMAL + "[material]\ndensity = 500.0\n[loads]\ngravity = [0.0, -9.81, 0.0]\n"
-    model, _ = build_model(load_scene(write_scene(tmp_path, text)))
+    model, _, _ = build_model(load_scene(write_scene(tmp_path, text)))
     assert model.particle_mass.numpy().sum() == pytest.approx(500.0 * 0.2 * 0.05 * 0.05, rel=1e-5)
     assert np.allclose(np.array(model.gravity), [0.0, -9.81, 0.0])
 

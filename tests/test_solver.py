@@ -7,7 +7,7 @@ import warp as wp
 
 import wcut
 from wcut.errors import SimulationError
-from wcut.model import Model, Springs
+from wcut.model import Model, Attachments
 from wcut.reference import ScipyCorotationalStep
 from wcut.solver import SolverCorotational
 
@@ -30,19 +30,20 @@ def run(model, solver, steps, dt, control=None, state=None):
 def test_step_matches_the_scipy_reference_solved_with_spsolve():
     mesh, model, params = clamped_beam()
     fixed = model.particle_fixed.numpy().astype(bool)
-    springs = Springs.at_points(mesh, [[0.35, 0.05, 0.05]], 50.0)
-    model = Model(mesh, fixed=fixed, springs=springs, rayleigh_mass=0.5, rayleigh_stiffness=0.01, **params)
+    attached = Attachments.at_points(mesh, [[0.35, 0.05, 0.05]], 50.0)
+    model = Model(mesh, fixed=fixed, attachments=attached, rayleigh_mass=0.5, rayleigh_stiffness=0.01, **params)
     ref = ScipyCorotationalStep(mesh.vertices, mesh.tets, fixed=fixed, rayleigh_mass=0.5, rayleigh_stiffness=0.01,
-                                spring_indices=springs.indices, spring_weights=springs.weights,
-                                spring_stiffness=springs.stiffness, **params)
+                                spring_indices=attached.indices, spring_weights=attached.weights,
+                                spring_stiffness=attached.stiffness, **params)
     control = model.control()
     target = np.array([[0.45, 0.0, 0.1]])
-    control.spring_target.assign(target)
+    control.attachment_target.assign(target)
     rng = np.random.default_rng(0)
     f_ext = 0.01 * rng.standard_normal((model.particle_count, 3))
-    control.particle_f.assign(f_ext)
-    solver = SolverCorotational(model, cg_iterations=400, cg_tolerance=1e-7, rotation_iterations=30)
     state, out = model.state(), model.state()
+    for s in (state, out):
+        s.particle_f.assign(f_ext)
+    solver = SolverCorotational(model, cg_iterations=400, cg_tolerance=1e-7, rotation_iterations=30)
     x, v = mesh.vertices.copy(), np.zeros_like(mesh.vertices)
     for _ in range(5):
         solver.step(state, out, control, 0.01)
@@ -100,11 +101,11 @@ def elastic_energy(model, state):
 
     x = state.particle_q.numpy().astype(np.float64)[model.mesh.tets]
     Ds = np.stack([x[:, 0] - x[:, 3], x[:, 1] - x[:, 3], x[:, 2] - x[:, 3]], axis=2)
-    F = Ds @ model.tet_shape_gradients.numpy().astype(np.float64)
+    F = Ds @ model.tet_poses.numpy().astype(np.float64)
     U, _, Vt = np.linalg.svd(F)
     S = np.einsum("nji,njk->nik", U @ Vt, F)
     eps = 0.5 * (S + S.transpose(0, 2, 1)) - np.eye(3)
-    mu, lam = lame_parameters(model.tet_youngs_modulus, model.tet_poisson_ratio)
+    mu, lam = lame_parameters(model.tet_youngs_modulus.numpy(), model.tet_poisson_ratio.numpy())
     tr = np.trace(eps, axis1=1, axis2=2)
     return float(np.sum(model.tet_rest_volume.numpy() * (mu * np.sum(eps * eps, axis=(1, 2)) + 0.5 * lam * tr ** 2)))
 
@@ -172,16 +173,16 @@ def test_embedding_user_kernels_and_two_models_in_one_loop():
     assert b.particle_q.numpy()[:, 2].min() < -0.001
 
 
-def test_a_stiff_spring_drags_its_point_to_the_target():
+def test_a_stiff_attachment_drags_its_point_to_the_target():
     mesh, _, params = clamped_beam()
-    springs = Springs.at_points(mesh, [[0.4, 0.05, 0.05]], 1.0e4)
-    model = Model(mesh, fixed=mesh.vertices_in_box((-1, -1, -1), (1e-9, 1, 1)), springs=springs,
+    attached = Attachments.at_points(mesh, [[0.4, 0.05, 0.05]], 1.0e4)
+    model = Model(mesh, fixed=mesh.vertices_in_box((-1, -1, -1), (1e-9, 1, 1)), attachments=attached,
                   rayleigh_mass=5.0, **params)
     control = model.control()
     target = np.array([0.4, 0.05, 0.15])
-    control.spring_target.assign(target[None])
+    control.attachment_target.assign(target[None])
     state = run(model, SolverCorotational(model, cg_iterations=200, cg_tolerance=1e-6), 100, 0.01, control)
-    point = springs.weights[0] @ state.particle_q.numpy()[springs.indices[0]]
+    point = attached.weights[0] @ state.particle_q.numpy()[attached.indices[0]]
     assert np.linalg.norm(point - target) < 0.01  # within 1 cm of a 10 cm pull
 
 
@@ -193,7 +194,7 @@ def test_bad_input_raises_errors_that_say_what():
     with pytest.raises(SimulationError, match="cg_iterations"):
         SolverCorotational(model, cg_iterations=0)
     mesh = wcut.beam(2, 1, 1)
-    sprung = Model(mesh, springs=Springs.at_vertices([0], 1.0))
+    sprung = Model(mesh, attachments=Attachments.at_vertices([0], 1.0))
     with pytest.raises(SimulationError, match="Control"):
         SolverCorotational(sprung).step(sprung.state(), sprung.state(), None, 0.01)
 
@@ -215,7 +216,7 @@ def test_step_allocates_nothing():
     import re
 
     mesh = wcut.beam(4, 2, 2, size=(0.2, 0.05, 0.05))
-    model = Model(mesh, fixed=[0, 1, 2], springs=Springs.at_vertices([40], 10.0), rayleigh_mass=0.1)
+    model = Model(mesh, fixed=[0, 1, 2], attachments=Attachments.at_vertices([40], 10.0), rayleigh_mass=0.1)
     solver = SolverCorotational(model, cg_iterations=10)
     a, b, control = model.state(), model.state(), model.control()
     report = io.StringIO()

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from .io import atomic_path
+from .io import atomic_path, check_writable
 from .mesh import beam
 from .model import Model
 from .solver import SolverCorotational
@@ -99,10 +99,11 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
     cg_fused_s = _median_seconds(lambda: ([c.launch() for c in solver._cg_commands],
                                           wp.synchronize_device(model.device)), repeats)
     forces = wp.launch(tet_p1.tet_forces, model.tet_count, device=model.device, record_cmd=True,
-                       inputs=[model.tet_indices, model.tet_shape_gradients, model.tet_stiffness, state.particle_q,
-                               state.particle_qd, solver.dv, state.tet_rotation, DT, DT * DT,
-                               solver.rotation_iterations, solver.rotation_tolerance],
-                       outputs=[scratch.tet_rotation, solver.tet_rotated_gradients, solver.particle_f,
+                       inputs=[model.tet_indices, model.tet_poses, model.tet_stiffness, state.particle_q,
+                               state.particle_qd, solver.dv, state.tet_rotation, DT + model.rayleigh_stiffness,
+                               DT * DT + DT * model.rayleigh_stiffness, solver.rotation_iterations,
+                               solver.rotation_tolerance],
+                       outputs=[scratch.tet_rotation, solver.tet_rotated_gradients, solver._force,
                                 solver.particle_diagonal, solver._q])
     forces_s = _median_seconds(forces.launch, repeats)
     cg_warp_s = _median_seconds(_warp_optim_cg(solver, DT), max(3, repeats // 4))
@@ -110,7 +111,7 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
     # rotation extraction alone, warm-started as in a step, and the SVD it is measured against
     x = state.particle_q.numpy()[mesh.tets]
     Ds = np.stack([x[:, 0] - x[:, 3], x[:, 1] - x[:, 3], x[:, 2] - x[:, 3]], axis=2)
-    F = wp.array(Ds @ model.tet_shape_gradients.numpy(), dtype=wp.mat33, device=model.device)
+    F = wp.array(Ds @ model.tet_poses.numpy(), dtype=wp.mat33, device=model.device)
     R = wp.empty(model.tet_count, dtype=wp.mat33, device=model.device)
     rot = wp.launch(rotation.extract_rotations, model.tet_count, device=model.device, record_cmd=True,
                     inputs=[F, state.tet_rotation, solver.rotation_iterations, solver.rotation_tolerance], outputs=[R])
@@ -155,6 +156,8 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
     side, preconditioner); ``cg_fused_ms`` the 20 iterations of our loop and
     ``cg_warp_optim_ms`` the same 20 iterations through ``warp.optim.linear.cg``.
     """
+    if json_path is not None:
+        check_writable(json_path)  # fail now, not after a minute of benchmarks
     records = []
     for i, (name, cells, size) in enumerate(scenes):
         if progress and sys.stderr.isatty():

@@ -37,3 +37,19 @@ def atomic_path(path: str | os.PathLike):
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.remove(tmp)
+
+
+def check_writable(path: str | os.PathLike) -> None:
+    """Raise :class:`ExportError` now if ``path`` could not be written later: long runs check
+    their output before they start. Creates nothing (the nearest existing directory on the way
+    must be writable, so the missing ones can be made when the file is written)."""
+    path = Path(path).absolute()
+    if path.is_dir():
+        raise ExportError(f"{path}: is a directory")
+    ancestor = path.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise ExportError(f"{path}: cannot write here: {ancestor} is not a directory")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise ExportError(f"{path}: cannot write here: {ancestor} is not writable")

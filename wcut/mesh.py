@@ -28,8 +28,9 @@ from .errors import MeshError
 TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
 
 #: Relative volume below which an element counts as degenerate: |V| < DEGENERATE_TOL * l^3,
-#: with l the element's longest edge.
-DEGENERATE_TOL = 1e-10
+#: with l the element's longest edge (a regular tetrahedron has 0.118). The simulation runs in
+#: float32: flatter elements are not even stress-free at rest once their corners are rounded.
+DEGENERATE_TOL = 1e-6
 
 
 def tet_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
@@ -39,6 +40,16 @@ def tet_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     d2 = vertices[tets[:, 2]] - v0
     d3 = vertices[tets[:, 3]] - v0
     return np.einsum("ij,ij->i", np.cross(d1, d2), d3) / 6.0
+
+
+def rest_frames(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Edge matrices ``Dm = [X0 - X3 | X1 - X3 | X2 - X3]`` (M, 3, 3), in metres.
+
+    ``Dm^{-1}`` maps positions to the barycentric coordinates of nodes 0..2 (thesis eq. 3.16),
+    so its rows are the shape-function gradients.
+    """
+    X = vertices[tets]
+    return np.stack([X[:, 0] - X[:, 3], X[:, 1] - X[:, 3], X[:, 2] - X[:, 3]], axis=2)
 
 
 def _longest_edges(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
@@ -125,17 +136,32 @@ class TetMesh:
         self._check_manifold(tets)
         self.vertices = vertices
         self.tets = tets
+        #: file index of each vertex when :meth:`load` dropped some, else None
+        self.source_vertex_ids: np.ndarray | None = None
         self._boundary: BoundarySurface | None = None
 
     def _check_manifold(self, tets: np.ndarray) -> None:
-        keys = _face_keys(tets[:, TET_FACES].reshape(-1, 3))
-        unique, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+        """Every face in at most two elements, on opposite sides (so no element is repeated
+        and no two elements overlap across a shared face)."""
+        faces = tets[:, TET_FACES].reshape(-1, 3)  # outward oriented, tets positively oriented
+        unique, inverse, counts = np.unique(_face_keys(faces), axis=0, return_inverse=True, return_counts=True)
+        inverse = inverse.ravel()
         over = np.flatnonzero(counts > 2)
         if len(over):
-            face = unique[over[0]]
-            owners = np.flatnonzero(inverse.ravel() == over[0]) // 4
-            raise MeshError(f"{self.name}: non-manifold face {face.tolist()} is shared by "
+            owners = np.flatnonzero(inverse == over[0]) // 4
+            raise MeshError(f"{self.name}: non-manifold face {unique[over[0]].tolist()} is shared by "
                             f"{counts[over[0]]} elements {owners.tolist()}")
+        a, b, c = faces[:, 0], faces[:, 1], faces[:, 2]
+        parity = ((a > b).astype(int) + (a > c) + (b > c)) % 2  # orientation relative to the sorted key
+        shared = np.flatnonzero(counts[inverse] == 2)
+        order = shared[np.argsort(inverse[shared], kind="stable")]
+        first, second = order[0::2], order[1::2]
+        same = np.flatnonzero(parity[first] == parity[second])
+        if len(same):
+            i, j = first[same[0]] // 4, second[same[0]] // 4
+            what = "repeats" if np.array_equal(np.sort(tets[i]), np.sort(tets[j])) else "overlaps"
+            raise MeshError(f"{self.name}: element {j} {what} element {i} (both on the same side of face "
+                            f"{unique[inverse[first[same[0]]]].tolist()})")
 
     @property
     def vertex_count(self) -> int:
@@ -169,6 +195,15 @@ class TetMesh:
         e = self.edges()
         return float(np.linalg.norm(self.vertices[e[:, 0]] - self.vertices[e[:, 1]], axis=1).mean())
 
+    def vertex_from_source(self, index: int) -> int:
+        """This mesh's index of vertex ``index`` of the loaded file (see ``source_vertex_ids``);
+        -1 if the file's vertex is not part of the mesh or out of range."""
+        if self.source_vertex_ids is None:
+            return index if 0 <= index < self.vertex_count else -1
+        position = int(np.searchsorted(self.source_vertex_ids, index))
+        found = position < len(self.source_vertex_ids) and self.source_vertex_ids[position] == index
+        return position if found else -1
+
     def vertices_in_box(self, lower, upper) -> np.ndarray:
         """Indices of vertices inside the closed axis-aligned box [lower, upper] (metres)."""
         lower = np.asarray(lower, dtype=np.float64)
@@ -181,7 +216,9 @@ class TetMesh:
         """Read a tetrahedral mesh from any format meshio reads (.msh, .vtu, .vtk, .mesh, ...).
 
         Every ``tetra`` cell block is used; other cell types (surface triangles, lines) are
-        ignored, and vertices only they reference are dropped.
+        ignored. Vertices only they reference are dropped, and then ``source_vertex_ids[i]`` is
+        the file's index of vertex ``i`` (``None`` when the numbering is the file's). A vertex
+        no cell uses is an error.
         """
         import meshio
 
@@ -203,12 +240,25 @@ class TetMesh:
         points = np.asarray(data.points, dtype=np.float64)
         if points.ndim == 2 and points.shape[1] == 2:
             raise MeshError(f"{path}: the mesh is two-dimensional")
+        name = os.path.basename(path)
+        if tets.min() < 0 or tets.max() >= len(points):
+            raise MeshError(f"{name}: element index out of range (vertex count {len(points)})")
+        in_any_cell = np.zeros(len(points), dtype=bool)
+        for block in data.cells:
+            ids = np.asarray(block.data, dtype=np.int64).ravel()
+            in_any_cell[ids[(ids >= 0) & (ids < len(points))]] = True
+        unused = np.flatnonzero(~in_any_cell)
+        if len(unused):
+            raise MeshError(f"{name}: vertex {unused[0]} is not used by any cell ({len(unused)} unreferenced vertices)")
         used = np.unique(tets)
-        if len(used) < len(points) and used[-1] < len(points):
+        source_ids = None
+        if len(used) < len(points):  # vertices of surface or line cells only: not part of the solid
             remap = np.full(len(points), -1, dtype=np.int64)
             remap[used] = np.arange(len(used))
-            points, tets = points[used], remap[tets]
-        return cls(points, tets, name=os.path.basename(path))
+            points, tets, source_ids = points[used], remap[tets], used
+        mesh = cls(points, tets, name=name)
+        mesh.source_vertex_ids = source_ids
+        return mesh
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the mesh with meshio (format from the extension), atomically."""

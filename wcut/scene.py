@@ -1,7 +1,7 @@
 """Scene files (TOML) and the loop that runs them to a USD animation.
 
 A scene names a mesh (a file or a generator), the material, damping, constraints, loads,
-springs, solver settings, duration and output. Every key is checked: an unknown key or a
+attachments, solver settings, duration and output. Every key is checked: an unknown key or a
 value of the wrong type is a :class:`wcut.SceneError` naming the key, e.g.
 ``beam_sag.toml: material.youngs_modulus: expected a number, got 'soft'``.
 
@@ -16,8 +16,8 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
     [constraints]   fixed_indices = [..], fixed_boxes = [[[x0,y0,z0],[x1,y1,z1]], ...]
     [loads]         gravity = [gx, gy, gz] (m/s^2)
     [[loads.force]] box = [[..],[..]], total = [fx, fy, fz] (N, spread evenly over the box's vertices)
-    [[springs]]     point = [x, y, z] or vertex = i; target = [x, y, z]; stiffness (N/m)
-    [solver]        dt (s), cg_iterations, cg_tolerance, rotation_iterations
+    [[attachments]] point = [x, y, z] or vertex = i; target = [x, y, z]; stiffness (N/m)
+    [solver]        dt (s), cg_iterations (<= 10000), cg_tolerance, rotation_iterations
     [simulation]    duration (s), fps (frames per second written)
     [output]        path, stress_colors (bool), stress_max (Pa: top of the colour scale; default:
                     the largest von Mises stress of the run), up_axis ("Z" or "Y")
@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SceneError, WcutError
+from .io import check_writable
 
 try:
     import tomllib
@@ -95,6 +96,10 @@ def _list_of(item):
     return check
 
 
+#: bounds that keep a typo from hanging a run or exhausting memory
+MAX_ITERATIONS = 10000
+MAX_SUBSTEPS = 10000
+
 # section -> key -> (checker, default); a default of None means "absent unless given"
 _SCHEMA = {
     "mesh": {"path": (_string, None), "generator": (_string, None), "cells": (_int3, [4, 4, 20]),
@@ -106,13 +111,13 @@ _SCHEMA = {
     "constraints": {"fixed_indices": (_list_of(_integer), []), "fixed_boxes": (_list_of(_box), [])},
     "loads": {"gravity": (_vec3, [0.0, 0.0, -9.81]), "force": (None, [])},
     "solver": {"dt": (_number, 0.01), "cg_iterations": (_integer, 50), "cg_tolerance": (_number, 1.0e-5),
-               "rotation_iterations": (_integer, 2)},
+               "rotation_iterations": (_integer, 8)},
     "simulation": {"duration": (_number, 2.0), "fps": (_number, 30.0)},
     "output": {"path": (_string, None), "stress_colors": (_boolean, True), "stress_max": (_number, None),
                "up_axis": (_string, "Z")},
 }
 _FORCE_SCHEMA = {"box": (_box, None), "total": (_vec3, None)}
-_SPRING_SCHEMA = {"point": (_vec3, None), "vertex": (_integer, None), "target": (_vec3, None),
+_ATTACHMENT_SCHEMA = {"point": (_vec3, None), "vertex": (_integer, None), "target": (_vec3, None),
                   "stiffness": (_number, None)}
 
 
@@ -143,7 +148,7 @@ class Scene:
     constraints: dict
     loads: dict
     forces: list = field(default_factory=list)
-    springs: list = field(default_factory=list)
+    attachments: list = field(default_factory=list)
     solver: dict = field(default_factory=dict)
     simulation: dict = field(default_factory=dict)
     output: dict = field(default_factory=dict)
@@ -172,7 +177,7 @@ def load_scene(path: str | os.PathLike) -> Scene:
 
 
 def _parse(raw: dict, path: Path) -> Scene:
-    top = set(_SCHEMA) | {"name", "springs"}
+    top = set(_SCHEMA) | {"name", "attachments"}
     unknown = sorted(set(raw) - top)
     if unknown:
         raise SceneError(f"{unknown[0]}: unknown key (expected one of: {', '.join(sorted(top))})")
@@ -192,21 +197,37 @@ def _parse(raw: dict, path: Path) -> Scene:
         for key in ("box", "total"):
             if f[key] is None:
                 raise SceneError(f"loads.force[{i}].{key}: missing")
-    springs = raw.get("springs", [])
-    if not isinstance(springs, list):
-        raise SceneError("springs: expected an array of tables ([[springs]])")
-    springs = [_table(s, _SPRING_SCHEMA, f"springs[{i}]") for i, s in enumerate(springs)]
-    for i, s in enumerate(springs):
-        if (s["point"] is None) == (s["vertex"] is None):
-            raise SceneError(f"springs[{i}]: give exactly one of point and vertex")
+    attachments = raw.get("attachments", [])
+    if not isinstance(attachments, list):
+        raise SceneError("attachments: expected an array of tables ([[attachments]])")
+    attachments = [_table(a, _ATTACHMENT_SCHEMA, f"attachments[{i}]") for i, a in enumerate(attachments)]
+    for i, a in enumerate(attachments):
+        if (a["point"] is None) == (a["vertex"] is None):
+            raise SceneError(f"attachments[{i}]: give exactly one of point and vertex")
         for key in ("target", "stiffness"):
-            if s[key] is None:
-                raise SceneError(f"springs[{i}].{key}: missing")
+            if a[key] is None:
+                raise SceneError(f"attachments[{i}].{key}: missing")
+        if a["stiffness"] < 0:
+            raise SceneError(f"attachments[{i}].stiffness: must be >= 0, got {a['stiffness']}")
     solver, sim, out = sections["solver"], sections["simulation"], sections["output"]
     for key, value in (("solver.dt", solver["dt"]), ("simulation.duration", sim["duration"]),
-                       ("simulation.fps", sim["fps"])):
+                       ("simulation.fps", sim["fps"]), ("material.density", sections["material"]["density"]),
+                       ("material.youngs_modulus", sections["material"]["youngs_modulus"])):
         if value <= 0:
             raise SceneError(f"{key}: must be positive, got {value}")
+    for key, value in sections["damping"].items():
+        if value < 0:
+            raise SceneError(f"damping.{key}: must be >= 0, got {value}")
+    if not -1.0 < sections["material"]["poisson_ratio"] < 0.5:
+        raise SceneError(f"material.poisson_ratio: must be in (-1, 0.5), got {sections['material']['poisson_ratio']}")
+    for key in ("cg_iterations", "rotation_iterations"):
+        if not 1 <= solver[key] <= MAX_ITERATIONS:
+            raise SceneError(f"solver.{key}: must be in 1..{MAX_ITERATIONS}, got {solver[key]}")
+    if solver["cg_tolerance"] < 0:
+        raise SceneError(f"solver.cg_tolerance: must be >= 0, got {solver['cg_tolerance']}")
+    if 1.0 / (sim["fps"] * solver["dt"]) > MAX_SUBSTEPS:
+        raise SceneError(f"solver.dt: {solver['dt']} s gives more than {MAX_SUBSTEPS} steps per frame at "
+                         f"simulation.fps = {sim['fps']}")
     if out["stress_max"] is not None and out["stress_max"] <= 0:
         raise SceneError(f"output.stress_max: must be positive, got {out['stress_max']}")
     if out["up_axis"] not in ("Y", "Z"):
@@ -219,7 +240,7 @@ def _parse(raw: dict, path: Path) -> Scene:
         name = re.sub(r"\W", "_", path.stem)
         name = name if re.match(r"[A-Za-z_]", name) else f"_{name}"
     return Scene(path=path, name=name, mesh=mesh, material=sections["material"], damping=sections["damping"],
-                 constraints=sections["constraints"], loads=sections["loads"], forces=forces, springs=springs,
+                 constraints=sections["constraints"], loads=sections["loads"], forces=forces, attachments=attachments,
                  solver=solver, simulation=sim, output=out)
 
 
@@ -234,39 +255,43 @@ def build_mesh(scene: Scene):
 
 
 def build_model(scene: Scene, mesh=None, device=None):
-    """Model and Control of a scene (constraints, loads and springs applied)."""
-    from .model import Model, Springs
+    """Model, Control and external nodal forces (N, (N, 3) numpy) of a scene."""
+    from .model import Attachments, Model
 
+    where = scene.path.name
     mesh = mesh if mesh is not None else build_mesh(scene)
     c = scene.constraints
-    fixed = [np.asarray(c["fixed_indices"], dtype=np.int64)]
-    fixed += [mesh.vertices_in_box(*box) for box in c["fixed_boxes"]]
-    fixed = np.unique(np.concatenate(fixed)).astype(np.int64)
+
+    def vertex(index: int, key: str) -> int:  # indices in a scene are the mesh file's numbering
+        found = mesh.vertex_from_source(index)
+        if found < 0:
+            raise SceneError(f"{where}: {key}: vertex {index} is not a vertex of the tetrahedral mesh")
+        return found
+
+    fixed = [np.array([vertex(i, "constraints.fixed_indices") for i in c["fixed_indices"]], dtype=np.int64)]
     for i, box in enumerate(c["fixed_boxes"]):
-        if len(mesh.vertices_in_box(*box)) == 0:
-            raise SceneError(f"{scene.path.name}: constraints.fixed_boxes[{i}] contains no vertex")
-    springs = Springs.empty()
-    for s in scene.springs:
-        if s["vertex"] is not None:
-            if not 0 <= s["vertex"] < mesh.vertex_count:
-                raise SceneError(f"{scene.path.name}: springs vertex {s['vertex']} out of range "
-                                 f"0..{mesh.vertex_count - 1}")
-            springs = springs.concatenate(Springs.at_vertices([s["vertex"]], s["stiffness"]))
+        fixed.append(mesh.vertices_in_box(*box))
+        if len(fixed[-1]) == 0:
+            raise SceneError(f"{where}: constraints.fixed_boxes[{i}] contains no vertex")
+    attached = Attachments.empty()
+    for i, a in enumerate(scene.attachments):
+        if a["vertex"] is not None:
+            index = vertex(a["vertex"], f"attachments[{i}].vertex")
+            attached = attached.concatenate(Attachments.at_vertices([index], a["stiffness"]))
         else:
-            springs = springs.concatenate(Springs.at_points(mesh, [s["point"]], s["stiffness"]))
-    model = Model(mesh, **scene.material, **scene.damping, gravity=scene.loads["gravity"], fixed=fixed,
-                  springs=springs, device=device)
+            attached = attached.concatenate(Attachments.at_points(mesh, [a["point"]], a["stiffness"]))
+    model = Model(mesh, **scene.material, **scene.damping, gravity=scene.loads["gravity"],
+                  fixed=np.unique(np.concatenate(fixed)), attachments=attached, device=device)
     control = model.control()
+    if len(scene.attachments):
+        control.attachment_target.assign(np.array([a["target"] for a in scene.attachments], dtype=np.float32))
     forces = np.zeros((mesh.vertex_count, 3))
     for i, f in enumerate(scene.forces):
         ids = mesh.vertices_in_box(*f["box"])
         if len(ids) == 0:
-            raise SceneError(f"{scene.path.name}: loads.force[{i}].box contains no vertex")
+            raise SceneError(f"{where}: loads.force[{i}].box contains no vertex")
         forces[ids] += np.asarray(f["total"]) / len(ids)
-    control.particle_f.assign(forces.astype(np.float32))
-    if len(scene.springs):
-        control.spring_target.assign(np.array([s["target"] for s in scene.springs], dtype=np.float32))
-    return model, control
+    return model, control, forces
 
 
 @dataclass
@@ -304,7 +329,9 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     if frames < 1:
         raise SceneError(f"frames must be at least 1, got {frames}")
     output = Path(output or scene.output["path"] or f"{scene.name}.usdc")
-    model, control = build_model(scene, device=device)
+    writer = UsdAnimationWriter(output, fps=scene.simulation["fps"], up_axis=scene.output["up_axis"])
+    check_writable(output)  # fail before the simulation, not after it
+    model, control, forces = build_model(scene, device=device)
     s = scene.solver
     solver = SolverCorotational(model, cg_iterations=s["cg_iterations"], cg_tolerance=s["cg_tolerance"],
                                 rotation_iterations=s["rotation_iterations"])
@@ -312,6 +339,8 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     substeps = max(1, math.ceil(1.0 / (fps * s["dt"]) - 1e-9))
     dt = 1.0 / (fps * substeps)
     state, next_state = model.state(), model.state()
+    for s in (state, next_state):  # constant loads: the solver reads them and never clears them
+        s.particle_f.assign(forces.astype(np.float32))
     surface = model.mesh.boundary()
     colored = scene.output["stress_colors"]
     # Frames are kept until the end so that every frame is coloured on one stress scale.
@@ -338,7 +367,7 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
         bar.update(1)
     bar.close()
     stress_max = scene.output["stress_max"] or (max(float(s.max()) for s in stresses) if colored else 0.0)
-    with UsdAnimationWriter(output, fps=fps, up_axis=scene.output["up_axis"]) as writer:
+    with writer:
         for frame, frame_points in enumerate(points):
             colors = stress_colors(stresses[frame], vmin=0.0, vmax=max(stress_max, 1e-30)) if colored else None
             writer.write_frame(scene.name, frame, frame_points, surface.local_triangles, colors)

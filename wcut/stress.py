@@ -18,7 +18,7 @@ def element_stress(model: Model, state: State) -> tuple[np.ndarray, np.ndarray]:
     stress = wp.empty(model.tet_count, dtype=wp.mat33, device=model.device)
     von_mises = wp.empty(model.tet_count, dtype=float, device=model.device)
     wp.launch(tet_p1.tet_stress, model.tet_count, device=model.device,
-              inputs=[model.tet_indices, model.tet_shape_gradients, model.tet_stiffness, model.tet_rest_volume,
+              inputs=[model.tet_indices, model.tet_poses, model.tet_stiffness, model.tet_rest_volume,
                       state.tet_rotation, state.particle_q],
               outputs=[stress, von_mises])
     return stress.numpy(), von_mises.numpy()

@@ -2,7 +2,7 @@
 
 Spring ``s`` joins the point ``p_s = sum_j w_sj x_j`` (up to four vertices, unused slots have
 weight 0) to ``target_s`` with stiffness ``k_s`` (N/m): energy ``k_s |p_s - target_s|^2 / 2``.
-Its stiffness matrix is ``k_s (w_s w_s^T)`` times the 3x3 identity. Springs are treated
+Its stiffness matrix is ``k_s (w_s w_s^T)`` times the 3x3 identity. Attachments are treated
 implicitly, like the elements, so stiff grabbing springs stay stable.
 """
 
@@ -10,11 +10,11 @@ import warp as wp
 
 
 @wp.kernel
-def spring_forces(
-    spring_indices: wp.array(dtype=wp.vec4i),
-    spring_weights: wp.array(dtype=wp.vec4),
-    spring_stiffness: wp.array(dtype=float),
-    spring_target: wp.array(dtype=wp.vec3),
+def attachment_forces(
+    attachment_indices: wp.array(dtype=wp.vec4i),
+    attachment_weights: wp.array(dtype=wp.vec4),
+    attachment_stiffness: wp.array(dtype=float),
+    attachment_target: wp.array(dtype=wp.vec3),
     particle_q: wp.array(dtype=wp.vec3),
     particle_qd: wp.array(dtype=wp.vec3),
     dv_start: wp.array(dtype=wp.vec3),
@@ -30,9 +30,9 @@ def spring_forces(
     ``matrix_scale k w_j^2`` and ``matrix_scale (K_springs dv_start)_j``.
     """
     s = wp.tid()
-    idx = spring_indices[s]
-    w = spring_weights[s]
-    k = spring_stiffness[s]
+    idx = attachment_indices[s]
+    w = attachment_weights[s]
+    k = attachment_stiffness[s]
     p = wp.vec3(0.0)
     pd = wp.vec3(0.0)
     p0 = wp.vec3(0.0)
@@ -40,7 +40,7 @@ def spring_forces(
         p += w[j] * particle_q[idx[j]]
         pd += w[j] * particle_qd[idx[j]]
         p0 += w[j] * dv_start[idx[j]]
-    f = -k * (p - spring_target[s] + velocity_scale * pd)
+    f = -k * (p - attachment_target[s] + velocity_scale * pd)
     for j in range(4):
         if w[j] != 0.0:
             wp.atomic_add(particle_f, idx[j], w[j] * f)
@@ -49,10 +49,10 @@ def spring_forces(
 
 
 @wp.kernel
-def spring_matvec(
-    spring_indices: wp.array(dtype=wp.vec4i),
-    spring_weights: wp.array(dtype=wp.vec4),
-    spring_stiffness: wp.array(dtype=float),
+def attachment_matvec(
+    attachment_indices: wp.array(dtype=wp.vec4i),
+    attachment_weights: wp.array(dtype=wp.vec4),
+    attachment_stiffness: wp.array(dtype=float),
     x: wp.array(dtype=wp.vec3),
     scale: float,
     k: int,
@@ -64,12 +64,12 @@ def spring_matvec(
     if rz[k] <= threshold[0]:
         return
     s = wp.tid()
-    idx = spring_indices[s]
-    w = spring_weights[s]
+    idx = attachment_indices[s]
+    w = attachment_weights[s]
     p = wp.vec3(0.0)
     for j in range(4):
         p += w[j] * x[idx[j]]
-    kp = (scale * spring_stiffness[s]) * p
+    kp = (scale * attachment_stiffness[s]) * p
     for j in range(4):
         if w[j] != 0.0:
             wp.atomic_add(y, idx[j], w[j] * kp)
