@@ -22,3 +22,15 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     assert abs(record["speedup_vs_reference"] - record["reference_step_ms"] / record["step_ms"]) < 0.05 * \
         record["speedup_vs_reference"] + 0.01
     assert "tiny" in capsys.readouterr().out
+
+
+def test_benchmark_checks_its_output_before_running(tmp_path, monkeypatch):
+    import pytest
+
+    import wcut.bench
+    from wcut.errors import ExportError
+
+    (tmp_path / "blocked").write_text("a file where a directory is needed")
+    monkeypatch.setattr(wcut.bench, "bench_scene", lambda *a, **k: pytest.fail("benchmarked before the check"))
+    with pytest.raises(ExportError, match="cannot write here"):
+        run_benchmarks(tmp_path / "blocked" / "bench.json", progress=False)

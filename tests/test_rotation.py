@@ -63,9 +63,10 @@ def test_cold_start_on_inverted_elements_gives_a_proper_rotation():
     R, R_ref = polar(F), closest_rotation(F)
     assert np.isfinite(R).all()
     assert_proper_rotations(R)
-    # From the identity, the iteration reaches the trace maximiser for most inverted matrices
-    # and another stationary point for the rest; the simulation never starts cold (next test).
-    assert np.mean(np.all(np.abs(R - R_ref) < 1e-3, axis=(1, 2))) > 0.75
+    # From the identity, the iteration reaches the trace maximiser for nearly all inverted
+    # matrices (98% here) and another stationary point for the rest; the simulation never
+    # starts cold (next test).
+    assert np.mean(np.all(np.abs(R - R_ref) < 1e-3, axis=(1, 2))) > 0.95
     assert_proper_rotations(svd(F), atol=1e-3)
 
 

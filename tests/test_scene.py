@@ -367,3 +367,44 @@ def test_stress_colours_share_one_scale_over_the_whole_run(tmp_path, tiny_scene)
     last = np.asarray(colors.Get(Usd.TimeCode(3)))
     np.testing.assert_allclose(first, np.broadcast_to(lowest, first.shape), atol=0.02)
     assert np.abs(last - lowest).max() > 0.2  # the clamped, sagging beam is stressed
+
+
+@pytest.mark.parametrize("extra, key", [
+    ("[solver]\ncg_iterations = 100000000\n", "solver.cg_iterations"),
+    ("[solver]\nrotation_iterations = 0\n", "solver.rotation_iterations"),
+    ("[solver]\ndt = 1e-12\n", "solver.dt"),
+    ("[solver]\ncg_tolerance = -1.0\n", "solver.cg_tolerance"),
+    ("[simulation]\nfps = 1e-9\n", "solver.dt"),
+    ("[material]\npoisson_ratio = 0.5\n", "material.poisson_ratio"),
+    ("[material]\ndensity = 0.0\n", "material.density"),
+    ("[damping]\nrayleigh_mass = -1.0\n", "damping.rayleigh_mass"),
+    ("[[attachments]]\nvertex = 3\ntarget = [0, 0, 0]\nstiffness = -1.0\n", "attachments[0].stiffness"),
+])
+def test_values_out_of_range_name_their_key(tmp_path, write_scene, extra, key):
+    message = _scene_error(tmp_path, write_scene, MINIMAL + extra)
+    assert key in message
+
+
+def test_fixed_index_outside_the_mesh_names_its_key(tmp_path, write_scene):
+    text = MINIMAL + "[constraints]\nfixed_indices = [0, 45]\n"
+    with pytest.raises(SceneError, match=r"constraints.fixed_indices: vertex 45 is not a vertex"):
+        build_model(load_scene(write_scene(tmp_path, text)))
+
+
+@pytest.mark.parametrize("output", ["anim.txt", "missing_parent_is_fine/anim.usdc", "blocked/anim.usdc"])
+def test_output_is_checked_before_the_simulation(tmp_path, tiny_scene, monkeypatch, output):
+    import wcut.scene
+
+    (tmp_path / "blocked").write_text("a file where a directory is needed")
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("the model was built before the output was checked")
+
+    monkeypatch.setattr(wcut.scene, "build_model", no_simulation)
+    if output.startswith("missing_parent_is_fine"):
+        with pytest.raises(AssertionError, match="model was built"):  # the check passed
+            run_scene(load_scene(tiny_scene), tmp_path / output, frames=1, progress=False)
+        assert not (tmp_path / "missing_parent_is_fine").exists()  # and created nothing
+    else:
+        with pytest.raises(WcutError):
+            run_scene(load_scene(tiny_scene), tmp_path / output, frames=1, progress=False)

@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from .io import atomic_path, check_writable
-from .mesh import beam
+from .mesh import beam, edge_matrices
 from .model import Model
 from .solver import SolverCorotational
 
@@ -109,8 +109,7 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
     cg_warp_s = _median_seconds(_warp_optim_cg(solver, DT), max(3, repeats // 4))
 
     # rotation extraction alone, warm-started as in a step, and the SVD it is measured against
-    x = state.particle_q.numpy()[mesh.tets]
-    Ds = np.stack([x[:, 0] - x[:, 3], x[:, 1] - x[:, 3], x[:, 2] - x[:, 3]], axis=2)
+    Ds = edge_matrices(state.particle_q.numpy().astype(np.float64), mesh.tets)
     F = wp.array(Ds @ model.tet_poses.numpy(), dtype=wp.mat33, device=model.device)
     R = wp.empty(model.tet_count, dtype=wp.mat33, device=model.device)
     rot = wp.launch(rotation.extract_rotations, model.tet_count, device=model.device, record_cmd=True,

@@ -42,11 +42,12 @@ def tet_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", np.cross(d1, d2), d3) / 6.0
 
 
-def rest_frames(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """Edge matrices ``Dm = [X0 - X3 | X1 - X3 | X2 - X3]`` (M, 3, 3), in metres.
+def edge_matrices(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Edge matrices ``[x0 - x3 | x1 - x3 | x2 - x3]`` (M, 3, 3) of tetrahedra, in metres.
 
-    ``Dm^{-1}`` maps positions to the barycentric coordinates of nodes 0..2 (thesis eq. 3.16),
-    so its rows are the shape-function gradients.
+    Of rest positions this is ``Dm``: ``Dm^{-1}`` maps positions to the barycentric coordinates
+    of nodes 0..2 (thesis eq. 3.16), so its rows are the shape-function gradients. Of current
+    positions it is ``Ds``, and ``F = Ds Dm^{-1}`` (eq. 3.20).
     """
     X = vertices[tets]
     return np.stack([X[:, 0] - X[:, 3], X[:, 1] - X[:, 3], X[:, 2] - X[:, 3]], axis=2)

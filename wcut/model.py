@@ -20,7 +20,7 @@ import numpy as np
 import warp as wp
 
 from .errors import ModelError
-from .mesh import TetMesh, rest_frames
+from .mesh import TetMesh, edge_matrices
 
 
 def lame_parameters(youngs_modulus, poisson_ratio):
@@ -135,7 +135,7 @@ class Attachments:
         if points.shape[1] != 3 or not np.isfinite(points).all():
             raise ModelError(f"attachment points must be finite (S, 3) coordinates, got shape {points.shape}")
         X3 = mesh.vertices[mesh.tets[:, 3]]
-        Dm_inv = np.linalg.inv(rest_frames(mesh.vertices, mesh.tets))
+        Dm_inv = np.linalg.inv(edge_matrices(mesh.vertices, mesh.tets))
         indices = np.empty((len(points), 4), np.int32)
         weights = np.empty((len(points), 4))
         for s, p in enumerate(points):
@@ -256,7 +256,7 @@ class Model:
             raise ModelError(f"attachments: vertex index {attachments.indices.min()} out of range 0..{N - 1}")
 
         rest = mesh.vertices.astype(np.float32).astype(np.float64)  # what the kernels see
-        Dm = rest_frames(rest, mesh.tets)
+        Dm = edge_matrices(rest, mesh.tets)
         volume = np.abs(np.linalg.det(Dm)) / 6.0
         mu, lam = lame_parameters(E, nu)
         mass = np.zeros(N)
