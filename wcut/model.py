@@ -38,7 +38,8 @@ def _number(value, name: str) -> float:
     return float(value)
 
 
-def _per_element(value, count: int, name: str, lower: float, upper: float, closed_lower: bool) -> np.ndarray:
+def _per_element(value, count: int, name: str, lower: float, upper: float) -> np.ndarray:
+    """A number or one number per element, each in the open interval (lower, upper)."""
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -47,12 +48,10 @@ def _per_element(value, count: int, name: str, lower: float, upper: float, close
         arr = np.full(count, float(arr))
     if arr.shape != (count,):
         raise ModelError(f"{name}: expected a number or {count} values (one per element), got shape {arr.shape}")
-    low_ok = arr >= lower if closed_lower else arr > lower
-    bad = np.flatnonzero(~(np.isfinite(arr) & low_ok & (arr < upper)))
+    bad = np.flatnonzero(~(np.isfinite(arr) & (arr > lower) & (arr < upper)))
     if len(bad):
-        bounds = f"{'[' if closed_lower else '('}{lower}, {upper})"
         where = f"element {bad[0]} has" if np.ndim(value) else "got"
-        raise ModelError(f"{name}: {where} {arr[bad[0]]}, expected a value in {bounds}")
+        raise ModelError(f"{name}: {where} {arr[bad[0]]}, expected a value in ({lower}, {upper})")
     return arr
 
 
@@ -230,9 +229,9 @@ class Model:
         self.particle_count = N
         self.tet_count = M
 
-        rho = _per_element(density, M, "density", 0.0, np.inf, closed_lower=False)
-        E = _per_element(youngs_modulus, M, "youngs_modulus", 0.0, np.inf, closed_lower=False)
-        nu = _per_element(poisson_ratio, M, "poisson_ratio", -1.0, 0.5, closed_lower=False)
+        rho = _per_element(density, M, "density", 0.0, np.inf)
+        E = _per_element(youngs_modulus, M, "youngs_modulus", 0.0, np.inf)
+        nu = _per_element(poisson_ratio, M, "poisson_ratio", -1.0, 0.5)
         for name, value in (("rayleigh_mass", rayleigh_mass), ("rayleigh_stiffness", rayleigh_stiffness)):
             value = _number(value, name)
             if not (np.isfinite(value) and value >= 0.0):
@@ -250,10 +249,9 @@ class Model:
         fixed_mask = np.zeros(N, dtype=np.int32)
         fixed_mask[_vertex_indices([] if fixed is None else fixed, N, "fixed")] = 1
         attachments = attachments if attachments is not None else Attachments.empty()
-        if len(attachments) and attachments.indices.max() >= N:
-            raise ModelError(f"attachments: vertex index {attachments.indices.max()} out of range 0..{N - 1}")
-        if len(attachments) and attachments.indices.min() < 0:
-            raise ModelError(f"attachments: vertex index {attachments.indices.min()} out of range 0..{N - 1}")
+        outside = attachments.indices[(attachments.indices < 0) | (attachments.indices >= N)]
+        if len(outside):
+            raise ModelError(f"attachments: vertex index {outside[0]} out of range 0..{N - 1}")
 
         rest = mesh.vertices.astype(np.float32).astype(np.float64)  # what the kernels see
         Dm = edge_matrices(rest, mesh.tets)

@@ -329,18 +329,19 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     if frames < 1:
         raise SceneError(f"frames must be at least 1, got {frames}")
     output = Path(output or scene.output["path"] or f"{scene.name}.usdc")
-    writer = UsdAnimationWriter(output, fps=scene.simulation["fps"], up_axis=scene.output["up_axis"])
+    fps = scene.simulation["fps"]
+    writer = UsdAnimationWriter(output, fps=fps, up_axis=scene.output["up_axis"])
     check_writable(output)  # fail before the simulation, not after it
     model, control, forces = build_model(scene, device=device)
-    s = scene.solver
-    solver = SolverCorotational(model, cg_iterations=s["cg_iterations"], cg_tolerance=s["cg_tolerance"],
-                                rotation_iterations=s["rotation_iterations"])
-    fps = scene.simulation["fps"]
-    substeps = max(1, math.ceil(1.0 / (fps * s["dt"]) - 1e-9))
+    settings = scene.solver
+    solver = SolverCorotational(model, cg_iterations=settings["cg_iterations"],
+                                cg_tolerance=settings["cg_tolerance"],
+                                rotation_iterations=settings["rotation_iterations"])
+    substeps = max(1, math.ceil(1.0 / (fps * settings["dt"]) - 1e-9))
     dt = 1.0 / (fps * substeps)
     state, next_state = model.state(), model.state()
-    for s in (state, next_state):  # constant loads: the solver reads them and never clears them
-        s.particle_f.assign(forces.astype(np.float32))
+    for each in (state, next_state):  # constant loads: the solver reads them and never clears them
+        each.particle_f.assign(forces.astype(np.float32))
     surface = model.mesh.boundary()
     colored = scene.output["stress_colors"]
     # Frames are kept until the end so that every frame is coloured on one stress scale.
@@ -355,18 +356,20 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     bar = _progress(frames, show, scene.name)
     step_seconds = 0.0
     record()
-    for _ in range(frames):
-        start = time.perf_counter()
-        for _ in range(substeps):
-            solver.step(state, next_state, control, dt)
-            state, next_state = next_state, state
-        wp.synchronize_device(model.device)
-        step_seconds += time.perf_counter() - start
-        solver.check_finite()
-        record()
-        bar.update(1)
-    bar.close()
-    stress_max = scene.output["stress_max"] or (max(float(s.max()) for s in stresses) if colored else 0.0)
+    try:
+        for _ in range(frames):
+            start = time.perf_counter()
+            for _ in range(substeps):
+                solver.step(state, next_state, control, dt)
+                state, next_state = next_state, state
+            wp.synchronize_device(model.device)
+            step_seconds += time.perf_counter() - start
+            solver.check_finite()
+            record()
+            bar.update(1)
+    finally:
+        bar.close()
+    stress_max = scene.output["stress_max"] or (max(float(v.max()) for v in stresses) if colored else 0.0)
     with writer:
         for frame, frame_points in enumerate(points):
             colors = stress_colors(stresses[frame], vmin=0.0, vmax=max(stress_max, 1e-30)) if colored else None
