@@ -27,7 +27,7 @@ def attachment_forces(
     """Spring terms of one step, mirroring :func:`wcut.kernels.tet_p1.tet_forces`.
 
     Scatters the force ``-k w_j (p - target + velocity_scale dp/dt)``, the diagonal
-    ``matrix_scale k w_j^2`` and ``matrix_scale (K_springs dv_start)_j``.
+    ``matrix_scale k w_j^2`` and ``matrix_scale (K_attach dv_start)_j``.
     """
     s = wp.tid()
     idx = attachment_indices[s]
@@ -60,7 +60,7 @@ def attachment_matvec(
     threshold: wp.array(dtype=float),
     y: wp.array(dtype=wp.vec3),
 ):
-    """y += scale K_springs x; returns at once when ``rz[k] <= threshold[0]``."""
+    """y += scale K_attach x; returns at once when ``rz[k] <= threshold[0]``."""
     if rz[k] <= threshold[0]:
         return
     s = wp.tid()

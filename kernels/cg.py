@@ -1,6 +1,6 @@
 """Fused Jacobi-preconditioned conjugate gradient on nodal vec3 arrays.
 
-One iteration is the element (and spring) products into ``q`` and three node-wise kernels,
+One iteration is the element (and attachment) products into ``q`` and three node-wise kernels,
 each fusing a vector update with the dot product the next one needs:
 :func:`cg_apply_mass` (``q = A p``, ``p.q``), :func:`cg_update` (x, r, z, ``r.z``) and
 :func:`cg_direction` (p). The scalars live on the device, one slot per iteration

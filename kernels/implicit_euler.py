@@ -3,10 +3,10 @@
 With ``h = dt``, Rayleigh damping ``D = alpha M + beta K`` (eq. 3.52) and the lumped mass
 ``M``, one Newton step solves ``A dv = b`` for the velocity change:
 
-    A = (1 + h alpha) M + (h^2 + h beta) K + h^2 K_springs
-    b = h (f_int + f_ext + M g + f_springs - alpha M v) - (h^2 + h beta) K v - h^2 K_springs v
+    A = (1 + h alpha) M + (h^2 + h beta) K + h^2 K_attach
+    b = h (f_int + f_ext + M g + f_attach - alpha M v) - (h^2 + h beta) K v - h^2 K_attach v
 
-(eq. 3.69 with ``dv = h a``). The element and spring kernels scatter the force terms into
+(eq. 3.69 with ``dv = h a``). The element and attachment kernels scatter the force terms into
 ``particle_f`` and the stiffness diagonals into ``particle_diagonal``; the kernels here add
 the nodal terms. Fixed (Dirichlet) vertices get ``b = 0`` and a zero preconditioner, so the
 conjugate gradient never moves them.

@@ -6,7 +6,7 @@ it owns the scratch arrays of the step, allocated once in the constructor. A ste
 
 1. per element: polar rotation (warm-started), rotated shape gradients, corotational force,
    the stiffness part of the right-hand side, the stiffness diagonal;
-2. per spring: force and diagonal;
+2. per attachment: force and diagonal;
 3. per node: right-hand side ``b`` and Jacobi preconditioner;
 4. conjugate gradient on ``A dv = b``, warm-started with the previous step's ``dv``;
 5. per node: ``v' = v + dv``, ``x' = x + dt v'``.
