@@ -55,7 +55,7 @@ def _warp_optim_cg(solver: SolverCorotational, dt: float):
     from .kernels import cg, tet_p1
 
     m, n, d = solver.model, solver.model.particle_count, solver.model.device
-    scale = dt * dt + dt * m.rayleigh_stiffness
+    scale = solver.stiffness_scale(dt)
     rz_one, zero = wp.array([1.0], dtype=float, device=d), wp.zeros(1, dtype=float, device=d)
 
     def matvec(x, y, z, alpha, beta):
@@ -98,14 +98,7 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
                              repeats)
     cg_fused_s = _median_seconds(lambda: ([c.launch() for c in solver._cg_commands],
                                           wp.synchronize_device(model.device)), repeats)
-    forces = wp.launch(tet_p1.tet_forces, model.tet_count, device=model.device, record_cmd=True,
-                       inputs=[model.tet_indices, model.tet_poses, model.tet_stiffness, state.particle_q,
-                               state.particle_qd, solver.dv, state.tet_rotation, DT + model.rayleigh_stiffness,
-                               DT * DT + DT * model.rayleigh_stiffness, solver.rotation_iterations,
-                               solver.rotation_tolerance],
-                       outputs=[scratch.tet_rotation, solver.tet_rotated_gradients, solver._force,
-                                solver.particle_diagonal, solver._q])
-    forces_s = _median_seconds(forces.launch, repeats)
+    forces_s = _median_seconds(solver.launch_element_pass(state, scratch, DT, record=True).launch, repeats)
     cg_warp_s = _median_seconds(_warp_optim_cg(solver, DT), max(3, repeats // 4))
 
     # rotation extraction alone, warm-started as in a step, and the SVD it is measured against

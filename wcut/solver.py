@@ -88,11 +88,26 @@ class SolverCorotational:
 
     # -- launches -------------------------------------------------------------------------
 
+    def stiffness_scale(self, dt: float) -> float:
+        """Factor of the stiffness matrix K in the system matrix A: ``dt^2 + dt beta`` (s^2)."""
+        return dt * dt + dt * self.model.rayleigh_stiffness
+
+    def launch_element_pass(self, state_in: State, state_out: State, dt: float, record: bool = False):
+        """The once-per-step element kernel (rotations, forces, right-hand side terms,
+        preconditioner diagonal, warm-start product); returns the recorded launch if ``record``."""
+        m = self.model
+        return wp.launch(tet_p1.tet_forces, m.tet_count, device=m.device, record_cmd=record,
+                         inputs=[m.tet_indices, m.tet_poses, m.tet_stiffness, state_in.particle_q,
+                                 state_in.particle_qd, self.dv, state_in.tet_rotation, dt + m.rayleigh_stiffness,
+                                 self.stiffness_scale(dt), self.rotation_iterations, self.rotation_tolerance],
+                         outputs=[state_out.tet_rotation, self.tet_rotated_gradients, self._force,
+                                  self.particle_diagonal, self._q])
+
     def _record_cg(self, dt: float) -> None:
         """Record the conjugate-gradient launches for the current dt, damping and tolerance."""
         m, n, d = self.model, self.model.particle_count, self.model.device
         r, z, p, q, rz, pq, norms = self._r, self._z, self._p, self._q, self._rz, self._pq, self._norms
-        stiffness_scale = dt * dt + dt * m.rayleigh_stiffness
+        stiffness_scale = self.stiffness_scale(dt)
         cmds = [wp.launch(cg.cg_init, n, device=d, record_cmd=True,
                           inputs=[self.rhs, self.inv_diagonal, self.mass_scale, self.dv, self.cg_tolerance ** 2],
                           outputs=[q, r, z, p, rz, norms])]
@@ -152,12 +167,7 @@ class SolverCorotational:
         self._rz.zero_()
         self._pq.zero_()
         self._norms.zero_()
-        wp.launch(tet_p1.tet_forces, m.tet_count, device=d,
-                  inputs=[m.tet_indices, m.tet_poses, m.tet_stiffness, state_in.particle_q,
-                          state_in.particle_qd, self.dv, state_in.tet_rotation, dt + m.rayleigh_stiffness,
-                          dt * dt + dt * m.rayleigh_stiffness, self.rotation_iterations, self.rotation_tolerance],
-                  outputs=[state_out.tet_rotation, self.tet_rotated_gradients, self._force,
-                           self.particle_diagonal, self._q])
+        self.launch_element_pass(state_in, state_out, dt)
         if m.attachment_count:
             wp.launch(attachments.attachment_forces, m.attachment_count, device=d,
                       inputs=[m.attachment_indices, m.attachment_weights, m.attachment_stiffness,
