@@ -141,6 +141,19 @@ class TetMesh:
         self.source_vertex_ids: np.ndarray | None = None
         self._boundary: BoundarySurface | None = None
 
+    @classmethod
+    def trusted(cls, vertices: np.ndarray, tets: np.ndarray, *, name: str = "mesh") -> "TetMesh":
+        """A mesh from arrays already known to be valid (the topology manager's output),
+        without the O(M log M) validation: a cut must cost what it touches, not the mesh size."""
+        mesh = cls.__new__(cls)
+        mesh.name = name
+        mesh.vertices = np.asarray(vertices, dtype=np.float64)
+        mesh.tets = np.asarray(tets, dtype=np.int64)
+        mesh.reoriented_count = 0
+        mesh.source_vertex_ids = None
+        mesh._boundary = None
+        return mesh
+
     def _check_manifold(self, tets: np.ndarray) -> None:
         """Every face in at most two elements, on opposite sides (so no element is repeated
         and no two elements overlap across a shared face)."""

@@ -1,0 +1,385 @@
+"""The remeshing cutter of thesis chapter 5, and its baselines behind the same interface.
+
+:class:`Cutter` inserts a separation surface into a :class:`~wcut.topology.TetTopology` and
+disconnects the mesh along it. The surface is intersected with the edges in the current
+configuration; every vertex it creates is a barycentric combination of the vertices of the
+element or edge it lies in, so the rest configuration follows exactly (thesis 3.2).
+
+The ``paulus`` method (thesis 5.1):
+
+1. *sampling* (5.1.1): each edge crossing the surface gets its crossing point and normal;
+   vertices within a tolerance of the surface are *on* it;
+2. *snapping* (5.1.3): the vertex of a crossed edge nearest to the plane of the crossing
+   (point, normal) moves onto the crossing when its distance is below ``epsilon`` times the
+   mean rest edge length and the move keeps every element valid;
+3. *1-4 splits* (figure 5.1): each element crossed by the surface gets a vertex at the
+   barycentre of its crossings (on-vertices included); an element cut only partly (one or two
+   crossings, at the front of a bounded surface) uses the crossings of the surface's
+   *extension* (5.1.1, 5.3), and that vertex is not on the cut;
+4. *2-3 flips* (figure 5.2) of every interior face through a crossed edge; where a flip would
+   invert an element the face is split at the barycentre of its crossings instead;
+   *1-3 splits* (figure 5.5) of boundary faces through a crossed edge;
+5. *general flips* (figure 5.3) of every crossed edge, which leaves triangles on the surface;
+   a boundary edge is flipped only where its two boundary faces are coplanar (the volume is
+   kept), else *bisected* at the crossing (5.1.2), as is any edge whose flip is refused;
+6. *disconnection* (5.1.3): faces whose three vertices are on the cut are unsewn and every
+   vertex on an unsewn face is duplicated once per fan of elements.
+
+Baselines (thesis 5.2): ``snap`` moves the nearest vertex of every crossed edge onto the
+surface, then disconnects; ``delete`` removes every crossed element; ``bielser`` is the
+1:17-style subdivision of :mod:`wcut.cut.bielser`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import WcutError
+from ..mesh import TET_FACES
+from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
+                        flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, unsew_face)
+from .surface import CutSurface
+
+METHODS = ("paulus", "bielser", "snap", "delete")
+
+#: Pairs of local vertex indices of the six edges of a tetrahedron.
+TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+
+#: Distance (relative to the mean rest edge length) within which a vertex is on the surface.
+ON_SURFACE_TOL = 1e-6
+
+#: Snapping threshold (relative) applied even when ``epsilon`` is smaller: crossings closer
+#: to a vertex than this would only make needle elements (thesis 5.1.4).
+MIN_SNAP = 1e-3
+
+
+class CutError(WcutError):
+    """A cut cannot be made: unknown method, bad threshold, or a surface that misses the mesh."""
+
+
+@dataclass
+class CutStats:
+    """Counts of one cut (elements and vertices of the mesh before it)."""
+
+    cut_elements: int = 0
+    snapped_vertices: int = 0
+    split_elements: int = 0
+    flips23: int = 0
+    face_splits: int = 0
+    general_flips: int = 0
+    bisections: int = 0
+    unsewn_faces: int = 0
+    duplicated_vertices: int = 0
+    deleted_elements: int = 0
+    refused: list[str] = field(default_factory=list)
+
+    def add(self, other: "CutStats") -> None:
+        for name, value in vars(other).items():
+            setattr(self, name, getattr(self, name) + value)
+
+
+@dataclass
+class CutResult:
+    change: TopologyChange
+    stats: CutStats
+
+
+class _Sampling:
+    """Crossings of the surface with the edges of candidate elements (thesis 5.1.1)."""
+
+    def __init__(self, topo: TetTopology, surface: CutSurface, slots: np.ndarray, tol: float):
+        tets = topo.tets[slots]
+        edges = np.unique(np.sort(tets[:, TET_EDGES].reshape(-1, 2), axis=1), axis=0)
+        x = topo.positions
+        verts = np.unique(tets)
+        self.on = set(verts[surface.distance(x[verts]) <= tol].tolist())
+        t, normal = surface.crossings(x[edges[:, 0]], x[edges[:, 1]], tol)
+        hit = np.isfinite(t)
+        self.edges = {(int(a), int(b)): (float(s), n) for (a, b), s, n in zip(edges[hit], t[hit], normal[hit])}
+        self.cut_slots = [int(s) for s, tet in zip(slots, tets.tolist())
+                          if any(_edge(tet[i], tet[j]) in self.edges for i, j in TET_EDGES)]
+
+
+def _edge(a: int, b: int) -> tuple[int, int]:
+    return (a, b) if a < b else (b, a)
+
+
+class Cutter:
+    """Cuts a :class:`TetTopology` with separation surfaces, one event at a time.
+
+    Args:
+        topology: the mesh to cut (edited in place).
+        method: ``paulus`` (this thesis), ``bielser``, ``snap`` or ``delete``.
+        epsilon: snapping threshold, a fraction of the mean rest edge length (thesis 5.1.3;
+            0 disables snapping except for crossings closer than ``MIN_SNAP``).
+        mean_edge_length: the length scale of ``epsilon`` (m); by default the mean rest edge
+            length of the mesh when the cutter is made, kept fixed through later cuts.
+    """
+
+    def __init__(self, topology: TetTopology, method: str = "paulus", epsilon: float = 0.1,
+                 mean_edge_length: float | None = None):
+        if method not in METHODS:
+            raise CutError(f"unknown cut method {method!r} (expected one of {', '.join(METHODS)})")
+        if not (isinstance(epsilon, (int, float)) and 0.0 <= epsilon < 0.5):
+            raise CutError(f"epsilon must be a number in [0, 0.5), got {epsilon!r}")
+        self.topology = topology
+        self.method = method
+        self.epsilon = float(epsilon)
+        if mean_edge_length is None:
+            mean_edge_length = topology.to_mesh().mean_edge_length()
+        self.mean_edge_length = float(mean_edge_length)
+        self._margin = 2.0 * self._longest_edge()
+
+    def _longest_edge(self) -> float:
+        tets = self.topology.tets[self.topology.live_tets()]
+        x = self.topology.rest_positions
+        return max(float(np.linalg.norm(x[tets[:, i]] - x[tets[:, j]], axis=1).max()) for i, j in TET_EDGES)
+
+    # ------------------------------------------------------------------ public
+    def cut(self, surface: CutSurface, bounds=None) -> CutResult:
+        """Insert ``surface`` (current configuration, m) and separate the mesh along it.
+
+        Args:
+            bounds: optional (lower, upper) box (m) outside which nothing is cut (e.g. the
+                part a blade swept this frame); the surface's own bounds otherwise.
+
+        Returns the :class:`TopologyChange` and the :class:`CutStats`. A surface that
+        crosses no element gives an empty change.
+        """
+        topo = self.topology
+        topo.begin_change()
+        stats = CutStats()
+        try:
+            slots = self._candidates(surface, bounds)
+            if self.method == "delete":
+                self._delete(surface, slots, stats)
+            elif self.method == "bielser":
+                from .bielser import bielser_cut
+
+                bielser_cut(self, surface, slots, stats)
+            else:
+                self._remesh(surface, slots, stats)
+        finally:
+            change = topo.end_change()
+        return CutResult(change, stats)
+
+    # ---------------------------------------------------------------- helpers
+    @property
+    def tolerance(self) -> float:
+        """Distance (m) within which a vertex is on the surface."""
+        return ON_SURFACE_TOL * self.mean_edge_length
+
+    def _candidates(self, surface: CutSurface, bounds) -> np.ndarray:
+        """Live elements near the surface (a vertex within the box grown by twice the
+        longest edge), so the cost follows the surface, not the mesh."""
+        topo = self.topology
+        slots = topo.live_tets()
+        lower, upper = surface.bounds() if bounds is None else bounds
+        lower = np.asarray(lower, float) - self._margin
+        upper = np.asarray(upper, float) + self._margin
+        if np.all(np.isinf(lower)) and np.all(np.isinf(upper)):
+            return slots
+        x = topo.positions
+        near = np.all((x >= lower) & (x <= upper), axis=1)
+        return slots[near[topo.tets[slots]].any(axis=1)]
+
+    def sample(self, surface: CutSurface, slots) -> _Sampling:
+        return _Sampling(self.topology, surface, np.asarray(slots, dtype=np.int64), self.tolerance)
+
+    def _snap(self, sampling: _Sampling, threshold: float, stats: CutStats) -> set[int]:
+        """Snap the nearest vertex of each crossed edge onto its crossing when its distance to
+        the plane (crossing, normal) is below ``threshold`` (m), nearest first (thesis 5.1.3)."""
+        x = self.topology.positions
+        moves = []
+        for (a, b), (t, n) in sampling.edges.items():
+            h = (1.0 - t) * x[a] + t * x[b]
+            da, db = abs(float(np.dot(n, x[a] - h))), abs(float(np.dot(n, x[b] - h)))
+            v, s, d = (a, t, da) if da <= db else (b, 1.0 - t, db)
+            if d < threshold:
+                moves.append((d, v, a + b - v, s))
+        snapped: set[int] = set()
+        for _, v, other, s in sorted(moves):
+            if v in snapped or other in snapped or v in sampling.on:
+                continue
+            try:
+                move_vertex(self.topology, v, [v, other], [1.0 - s, s])
+            except TopologyError as exc:
+                stats.refused.append(str(exc))
+                continue
+            snapped.add(v)
+        stats.snapped_vertices += len(snapped)
+        return snapped
+
+    # ---------------------------------------------------------------- paulus
+    def _remesh(self, surface: CutSurface, slots: np.ndarray, stats: CutStats) -> None:
+        topo = self.topology
+        sampling = self.sample(surface, slots)
+        stats.cut_elements = len(sampling.cut_slots)
+        if not sampling.edges and not sampling.on:
+            return
+        epsilon = np.inf if self.method == "snap" else max(self.epsilon, MIN_SNAP)
+        snapped = self._snap(sampling, epsilon * self.mean_edge_length, stats)
+        if snapped:
+            sampling = self.sample(surface, slots)
+        marked = set(sampling.on) | snapped
+        if self.method == "paulus":
+            marked |= self._insert_surface(surface, sampling, stats)
+        self._disconnect(surface, marked, stats)
+
+    def _insert_surface(self, surface: CutSurface, sampling: _Sampling, stats: CutStats) -> set[int]:
+        """Steps 3-5: 1-4 splits, 2-3 flips / face splits, general flips / bisections.
+        Returns the vertices created on the surface."""
+        topo = self.topology
+        marked: set[int] = set()
+        cut_tets = [topo.tet(t) for t in sampling.cut_slots]
+        for t, tet in zip(sampling.cut_slots, cut_tets):
+            weights, real = self._element_point(surface, sampling, tet)
+            try:
+                p, _ = split_tet(topo, t, weights)
+            except TopologyError as exc:
+                stats.refused.append(str(exc))
+                continue
+            stats.split_elements += 1
+            if real:
+                marked.add(p)
+        faces = {}
+        for tet in cut_tets:
+            for local in TET_FACES.tolist():
+                tri = [tet[i] for i in local]
+                if any(_edge(tri[i], tri[j]) in sampling.edges for i, j in ((0, 1), (1, 2), (0, 2))):
+                    faces[face_key(*tri)] = None
+        for key in faces:
+            if key not in topo.face_tets:
+                continue
+            if len(topo.face_tets[key]) == 2:
+                try:
+                    flip23(topo, key)
+                    stats.flips23 += 1
+                    continue
+                except TopologyError:
+                    pass
+            point = self._face_point(surface, sampling, key)
+            if point is None:
+                continue
+            try:
+                r, _ = split_face(topo, key, point[0])
+            except TopologyError as exc:
+                stats.refused.append(str(exc))
+                continue
+            stats.face_splits += 1
+            if point[1]:
+                marked.add(r)
+        for (a, b), (t, _) in sampling.edges.items():
+            if not topo.edge_tets(a, b):
+                continue
+            try:
+                remove_edge(topo, a, b)
+                stats.general_flips += 1
+                continue
+            except TopologyError:
+                pass
+            try:
+                m, _ = bisect_edge(topo, a, b, t)
+            except TopologyError as exc:
+                stats.refused.append(str(exc))
+                continue
+            stats.bisections += 1
+            marked.add(m)
+        return marked
+
+    def _element_point(self, surface: CutSurface, sampling: _Sampling, tet: list[int]):
+        """Barycentric weights of the 1-4 split vertex of element ``tet`` (thesis 5.1.1, 5.3)
+        and whether it lies on the cut: the barycentre of the crossings and on-vertices, or,
+        with fewer than three of them, of those of the surface's extension."""
+        points = self._crossing_weights(tet, sampling.edges, sampling.on)
+        if len(points) >= 3:
+            return np.mean(points, axis=0), True
+        x = self.topology.positions
+        pairs = [(tet[i], tet[j]) for i, j in TET_EDGES]
+        a = x[[p[0] for p in pairs]]
+        b = x[[p[1] for p in pairs]]
+        t, normal = surface.extension_crossings(a, b, self.tolerance)
+        extension = {_edge(*p): (s if p[0] < p[1] else 1.0 - s, n)
+                     for p, s, n in zip(pairs, t, normal) if np.isfinite(s)}
+        points = self._crossing_weights(tet, extension, sampling.on) or points
+        weights = np.mean(points, axis=0)
+        if len(points) < 3:  # degenerate: pull off the element's boundary
+            weights = 0.75 * weights + 0.0625
+        return weights, False
+
+    @staticmethod
+    def _crossing_weights(vertices: list[int], edges: dict, on: set[int]) -> list[np.ndarray]:
+        """Barycentric weights (over ``vertices``) of the crossings on their edges and of the
+        vertices that are on the surface."""
+        k = len(vertices)
+        points = []
+        for i in range(k):
+            if vertices[i] in on:
+                w = np.zeros(k)
+                w[i] = 1.0
+                points.append(w)
+            for j in range(i + 1, k):
+                key = _edge(vertices[i], vertices[j])
+                if key in edges:
+                    t = edges[key][0]
+                    s = t if vertices[i] == key[0] else 1.0 - t  # parameter from vertex i
+                    w = np.zeros(k)
+                    w[i], w[j] = 1.0 - s, s
+                    points.append(w)
+        return points
+
+    def _face_point(self, surface, sampling, key):
+        """Weights (over the sorted face vertices) of the point where a face is split, and
+        whether it is on the cut: the barycentre of its crossings and on-vertices."""
+        points = self._crossing_weights(list(key), sampling.edges, sampling.on)
+        if len(points) >= 2:
+            return np.mean(points, axis=0), True
+        if not points:
+            return None
+        return 0.5 * points[0] + 0.5 / 3.0, False
+
+    # ----------------------------------------------------------- disconnection
+    def _disconnect(self, surface: CutSurface, marked: set[int], stats: CutStats) -> None:
+        """Unsew interior faces whose three vertices are on the cut and which lie on the
+        surface, then duplicate their vertices once per fan (thesis 5.1.3)."""
+        topo = self.topology
+        faces = set()
+        for v in marked:
+            for t in topo.vertex_tets[v]:
+                tet = topo.tet(t)
+                for local in TET_FACES.tolist():
+                    tri = [tet[i] for i in local]
+                    if all(u in marked for u in tri):
+                        faces.add(face_key(*tri))
+        x = topo.positions
+        opened = []
+        for key in sorted(faces):
+            if len(topo.face_tets.get(key, ())) != 2:
+                continue
+            corners = x[list(key)]
+            size = np.linalg.norm(corners - corners.mean(axis=0), axis=1).max()
+            if surface.distance(corners.mean(axis=0)[None])[0] > 0.25 * size + self.tolerance:
+                continue  # three vertices on the cut, but the face spans across it
+            unsew_face(topo, key)
+            opened.append(key)
+        stats.unsewn_faces += len(opened)
+        for v in sorted({v for key in opened for v in key}):
+            stats.duplicated_vertices += len(duplicate_vertex(topo, v))
+        sew_unopened(topo)
+
+    # ---------------------------------------------------------------- delete
+    def _delete(self, surface: CutSurface, slots: np.ndarray, stats: CutStats) -> None:
+        """Remove every element the surface crosses (the simplest cut; loses volume)."""
+        topo = self.topology
+        sampling = self.sample(surface, slots)
+        doomed = set(sampling.cut_slots)
+        stats.cut_elements = len(doomed)
+        if not doomed:
+            return
+        if len(doomed) == topo.tet_count:
+            raise CutError("deleting the crossed elements would delete the whole mesh")
+        topo.replace_tets(sorted(doomed), [])
+        stats.deleted_elements = len(doomed)
+        topo.drop_unused_vertices()

@@ -1,0 +1,104 @@
+"""The record of one topological event: how the new mesh derives from the old one.
+
+A cut, a crack or a detected tear changes the mesh locally. :class:`TopologyChange` says, in
+the old mesh's numbering, where every vertex and element of the new mesh comes from, so that
+:meth:`wcut.model.Model.rebuild` can lay out the flat arrays again and carry the state over by
+interpolation (DESIGN.md, "How data flows"): positions, velocities and rest positions of new
+vertices are barycentric combinations of old ones, never guesses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TopologyChange:
+    """How mesh B (after) derives from mesh A (before); indices are compact mesh indices.
+
+    Attributes:
+        vertex_count_before, vertex_count_after, element_count_before, element_count_after.
+        vertex_sources: (V_B, K) vertices of A, and
+        vertex_weights: (V_B, K) weights, such that any vertex attribute of B (rest position,
+            position, velocity) is ``sum_k weights[v, k] * attribute_A[sources[v, k]]``.
+            An untouched vertex has itself with weight 1; a duplicate has its original.
+        vertex_parent_element: (V_B,) element of A in which a new vertex was created (-1 for
+            vertices of A, moved or not, and for duplicates).
+        new_vertices: vertices of B that A did not have (created or duplicated).
+        moved_vertices: vertices of A whose position changed (snapped).
+        element_parent: (E_B,) element of A each element of B lies in, whose material it takes.
+        element_rest_changed: (E_B,) True where the element's rest shape is new (added elements
+            and elements around a moved vertex): their rest data must be recomputed.
+        removed_elements: elements of A that B does not have.
+        added_elements: elements of B that A did not have.
+    """
+
+    vertex_count_before: int
+    vertex_count_after: int
+    element_count_before: int
+    element_count_after: int
+    vertex_sources: np.ndarray
+    vertex_weights: np.ndarray
+    vertex_parent_element: np.ndarray
+    new_vertices: np.ndarray
+    moved_vertices: np.ndarray
+    element_parent: np.ndarray
+    element_rest_changed: np.ndarray
+    removed_elements: np.ndarray
+    added_elements: np.ndarray
+
+    @property
+    def is_empty(self) -> bool:
+        """True when the mesh did not change at all."""
+        return (self.vertex_count_after == self.vertex_count_before and len(self.removed_elements) == 0
+                and len(self.added_elements) == 0 and len(self.moved_vertices) == 0
+                and not self.element_rest_changed.any())
+
+    @classmethod
+    def from_journal(cls, journal, topo) -> "TopologyChange":
+        base_slots = journal.base_slots
+        slots = topo.live_tets()
+        e_b = len(slots)
+        # before-index of a base slot is its rank among the base slots
+        element_parent = np.empty(e_b, dtype=np.int64)
+        rest_changed = np.zeros(e_b, dtype=bool)
+        added = []
+        for i, s in enumerate(slots.tolist()):
+            origin = journal.origin.get(s)
+            if origin is None:
+                element_parent[i] = s
+                rest_changed[i] = s in journal.reshaped
+            else:
+                element_parent[i] = origin
+                rest_changed[i] = True
+                added.append(i)
+        element_parent = np.searchsorted(base_slots, element_parent)
+        removed = np.searchsorted(base_slots, np.array(sorted(journal.removed_base), dtype=np.int64))
+
+        v_a, v_b = journal.base_vertex_count, topo.vertex_count
+        width = max([4] + [len(e) for e in journal.expression.values()])
+        identity = np.arange(v_b, dtype=np.int64) if journal.vertex_renumber is None else journal.vertex_renumber
+        sources = np.repeat(identity[:, None], width, axis=1)
+        weights = np.zeros((v_b, width))
+        weights[:, 0] = 1.0
+        parent_element = np.full(v_b, -1, dtype=np.int64)
+        for v, expr in journal.expression.items():
+            ids = list(expr)
+            sources[v, : len(ids)] = ids
+            sources[v, len(ids):] = ids[0]
+            weights[v] = 0.0
+            weights[v, : len(ids)] = list(expr.values())
+            if v in journal.vertex_origin:
+                parent_element[v] = np.searchsorted(base_slots, journal.vertex_origin[v])
+        moved = np.array(sorted(v for v in journal.expression if v < v_a), dtype=np.int64)
+        return cls(
+            vertex_count_before=v_a, vertex_count_after=v_b,
+            element_count_before=len(base_slots), element_count_after=e_b,
+            vertex_sources=sources, vertex_weights=weights, vertex_parent_element=parent_element,
+            new_vertices=np.arange(v_a, max(v_a, v_b), dtype=np.int64), moved_vertices=moved,
+            element_parent=element_parent, element_rest_changed=rest_changed,
+            removed_elements=removed, added_elements=np.array(added, dtype=np.int64),
+        )
+

@@ -1,0 +1,395 @@
+"""A tetrahedral mesh that changes: storage, local adjacency and the change journal.
+
+:class:`TetTopology` is what the cutter edits (thesis 4.3). It keeps, and updates locally with
+every change, the adjacency the operators need:
+
+- the tetrahedra around a vertex (``vertex_tets``),
+- the tetrahedra sharing a face (``face_tets``, keyed by the sorted vertex triple),
+- from these, the ordered ring of tetrahedra around an edge (:meth:`edge_ring`) and the
+  boundary faces.
+
+A face can be *unsewn* (thesis 5.1.3, the combinatorial map's volume binding deleted): its
+two tetrahedra still share the three vertices but no longer count as connected through it
+when a vertex is split into one copy per connected fan (:meth:`duplicate_vertex`).
+
+Vertex attributes are carried in one float64 table, ``vertex_data``: rest position (m),
+current position (m) and velocity (m/s). A vertex created inside an element gets the
+barycentric combination of the element's vertices, for all three at once: for linear
+elements the map from rest to current configuration is affine per element, so this is exact
+(thesis 3.2).
+
+Element slots are reused once freed (as CGoGN's attribute containers do), so an element's
+index is stable while it lives and the cost of a change follows the elements it touches.
+:meth:`begin_change` / :meth:`end_change` bracket a topological event and produce the
+:class:`~wcut.topology.change.TopologyChange` that :meth:`wcut.model.Model.rebuild` reads.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import WcutError
+from ..mesh import DEGENERATE_TOL, TET_FACES, TetMesh
+
+#: Columns of ``vertex_data``.
+REST, POSITION, VELOCITY = slice(0, 3), slice(3, 6), slice(6, 9)
+
+
+class TopologyError(WcutError):
+    """An operator refused a change (it would invert or flatten an element, or its input is
+    not what it needs); the mesh is left as it was."""
+
+
+def face_key(a: int, b: int, c: int) -> tuple[int, int, int]:
+    """The key of the face with vertices a, b, c: the sorted triple."""
+    if a > b:
+        a, b = b, a
+    if b > c:
+        b, c = c, b
+    if a > b:
+        a, b = b, a
+    return (a, b, c)
+
+
+def signed_volume(p0, p1, p2, p3) -> float:
+    """Signed volume (m^3) of the tetrahedron p0 p1 p2 p3: det[p1-p0, p2-p0, p3-p0] / 6."""
+    return float(np.dot(np.cross(p1 - p0, p2 - p0), p3 - p0)) / 6.0
+
+
+def tet_quality(points: np.ndarray) -> float:
+    """Volume over cubed longest edge of a tetrahedron given as (4, 3) points (signed;
+    DEGENERATE_TOL is the smallest value a mesh accepts, a regular tetrahedron has 0.118)."""
+    volume = signed_volume(*points)
+    d = points[:, None, :] - points[None, :, :]
+    longest = np.sqrt((d * d).sum(axis=2).max())
+    return volume / longest**3
+
+
+class TetTopology:
+    """A tetrahedral mesh with local adjacency that stays correct through every change.
+
+    Args:
+        mesh: the rest configuration.
+        positions: (N, 3) current positions (m); the rest positions when omitted.
+        velocities: (N, 3) velocities (m/s); zero when omitted.
+
+    Invariants kept by every operator (checked by :func:`wcut.topology.check.check_topology`):
+    live elements positively oriented with quality above ``DEGENERATE_TOL`` in the rest
+    configuration, every face in at most two elements, adjacency equal to the adjacency
+    rebuilt from the elements, total rest volume unchanged (only boundary operators that say
+    so change it).
+    """
+
+    def __init__(self, mesh: TetMesh, positions=None, velocities=None):
+        n = mesh.vertex_count
+        data = np.zeros((max(2 * n, 16), 9))
+        data[:n, REST] = mesh.vertices
+        data[:n, POSITION] = mesh.vertices if positions is None else np.asarray(positions, float)
+        if velocities is not None:
+            data[:n, VELOCITY] = np.asarray(velocities, float)
+        self.vertex_data = data
+        self.vertex_count = n
+        m = mesh.tet_count
+        self.tets = np.zeros((max(2 * m, 16), 4), dtype=np.int64)
+        self.tets[:m] = mesh.tets
+        self.alive = np.zeros(len(self.tets), dtype=bool)
+        self.alive[:m] = True
+        self.slot_count = m
+        self._free: list[int] = []
+        self.vertex_tets: list[set[int]] = [set() for _ in range(n)]
+        self.face_tets: dict[tuple[int, int, int], list[int]] = {}
+        for t, tet in enumerate(mesh.tets.tolist()):
+            self._link(t, tet)
+        self.unsewn: set[tuple[int, int, int]] = set()
+        self.name = mesh.name
+        self._journal: _Journal | None = None
+
+    # ----------------------------------------------------------------- queries
+    @property
+    def tet_count(self) -> int:
+        """Number of live elements."""
+        return self.slot_count - len(self._free)
+
+    def live_tets(self) -> np.ndarray:
+        """Slots of the live elements, ascending (the order of :meth:`to_mesh`)."""
+        return np.flatnonzero(self.alive[: self.slot_count])
+
+    @property
+    def rest_positions(self) -> np.ndarray:
+        """(N, 3) rest positions (m), a view."""
+        return self.vertex_data[: self.vertex_count, REST]
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(N, 3) current positions (m), a view."""
+        return self.vertex_data[: self.vertex_count, POSITION]
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """(N, 3) velocities (m/s), a view."""
+        return self.vertex_data[: self.vertex_count, VELOCITY]
+
+    def tet(self, t: int) -> list[int]:
+        return self.tets[t].tolist()
+
+    def rest_volume(self, t: int) -> float:
+        """Signed rest volume (m^3) of element slot t."""
+        return signed_volume(*self.vertex_data[self.tets[t], REST])
+
+    def neighbors(self, t: int, key: tuple[int, int, int]) -> list[int]:
+        """The other element across face ``key`` of element t ([] on the boundary or unsewn)."""
+        if key in self.unsewn:
+            return []
+        return [s for s in self.face_tets[key] if s != t]
+
+    def is_boundary_face(self, key) -> bool:
+        return len(self.face_tets.get(key, ())) == 1
+
+    def boundary_faces(self) -> np.ndarray:
+        """(F, 3) boundary triangles, outward oriented (faces of a single element)."""
+        out = []
+        for t in self.live_tets().tolist():
+            tet = self.tets[t]
+            for local in TET_FACES:
+                tri = tet[local]
+                if len(self.face_tets[face_key(*tri.tolist())]) == 1:
+                    out.append(tri)
+        return np.array(out, dtype=np.int64).reshape(-1, 3)
+
+    def edge_tets(self, a: int, b: int) -> set[int]:
+        """Elements containing edge (a, b)."""
+        return self.vertex_tets[a] & self.vertex_tets[b]
+
+    def edge_ring(self, a: int, b: int) -> tuple[list[int], list[int], bool]:
+        """The ordered ring of elements around edge (a, b) (thesis figure 5.1).
+
+        Returns ``(tets, polygon, closed)``: element ``tets[i]`` is ``(a, b, polygon[i],
+        polygon[i+1])`` up to orientation, ordered so that ``signed_volume(a, b, polygon[i],
+        polygon[i+1]) > 0``. For an interior edge the ring is closed (``polygon`` has one vertex
+        per element, indices taken cyclically); for a boundary edge it is open and ``polygon``
+        has one more vertex than there are elements. Unsewn faces count as boundary.
+        """
+        around = self.edge_tets(a, b)
+        if not around:
+            raise TopologyError(f"edge ({a}, {b}) is not in the mesh")
+
+        def others(t):
+            return [v for v in self.tets[t].tolist() if v != a and v != b]
+
+        def across(t, w):
+            nb = self.neighbors(t, face_key(a, b, w))
+            return nb[0] if nb else -1
+
+        # An open ring starts at an element with a boundary face on the edge.
+        start, first = next(iter(around)), None
+        for t in around:
+            for w in others(t):
+                if across(t, w) < 0:
+                    start, first = t, w
+                    break
+            if first is not None:
+                break
+        if first is None:
+            first = others(start)[0]
+        tets, polygon = [], [first]
+        t, w = start, first
+        while True:
+            u = [v for v in others(t) if v != w][0]
+            tets.append(t)
+            polygon.append(u)
+            nxt = across(t, u)
+            if nxt < 0 or nxt == start:
+                break
+            t, w = nxt, u
+            if len(tets) > len(around):
+                raise TopologyError(f"edge ({a}, {b}): its ring of elements is not a manifold fan")
+        closed = nxt == start
+        if closed:
+            polygon.pop()
+        if len(tets) != len(around):
+            raise TopologyError(f"edge ({a}, {b}): its elements form more than one fan")
+        x = self.vertex_data
+        if signed_volume(x[a, REST], x[b, REST], x[polygon[0], REST], x[polygon[1], REST]) < 0:
+            tets.reverse()
+            polygon.reverse()
+            if closed:  # keep polygon[i], polygon[i+1] the corners of tets[i]
+                polygon = polygon[-1:] + polygon[:-1]
+        return tets, polygon, closed
+
+    def is_boundary_vertex(self, v: int) -> bool:
+        for t in self.vertex_tets[v]:
+            tet = self.tets[t]
+            for local in TET_FACES:
+                tri = tet[local].tolist()
+                if v in tri and len(self.face_tets[face_key(*tri)]) == 1:
+                    return True
+        return False
+
+    def to_mesh(self, name: str | None = None) -> TetMesh:
+        """The live elements as a :class:`TetMesh` (elements in slot order, vertices as
+        numbered here), without re-validating: the operators keep the mesh valid."""
+        return TetMesh.trusted(self.rest_positions.copy(), self.tets[self.live_tets()].copy(),
+                               name=name or self.name)
+
+    # ------------------------------------------------------- low-level editing
+    def _link(self, t: int, tet) -> None:
+        for v in tet:
+            self.vertex_tets[v].add(t)
+        for i, j, k in TET_FACES.tolist():
+            self.face_tets.setdefault(face_key(tet[i], tet[j], tet[k]), []).append(t)
+
+    def _unlink(self, t: int) -> None:
+        tet = self.tets[t].tolist()
+        for v in tet:
+            self.vertex_tets[v].discard(t)
+        for i, j, k in TET_FACES.tolist():
+            key = face_key(tet[i], tet[j], tet[k])
+            owners = self.face_tets[key]
+            owners.remove(t)
+            if not owners:
+                del self.face_tets[key]
+                self.unsewn.discard(key)
+            elif len(owners) == 1:
+                self.unsewn.discard(key)
+
+    def _new_slot(self) -> int:
+        if self._free:
+            return self._free.pop()
+        if self.slot_count == len(self.tets):
+            self.tets = np.concatenate([self.tets, np.zeros_like(self.tets)])
+            self.alive = np.concatenate([self.alive, np.zeros_like(self.alive)])
+        self.slot_count += 1
+        return self.slot_count - 1
+
+    def replace_tets(self, removed: list[int], added: list[list[int]], parents: list[int] | None = None) -> list[int]:
+        """Replace elements ``removed`` by ``added`` (vertex lists, positively oriented).
+
+        The primitive every operator ends with; it checks nothing, the operators check first.
+        New element i lies in removed element ``parents[i]`` (default ``removed[0]``), whose
+        origin in the journal it inherits.
+        """
+        parents = parents or [removed[0]] * len(added)
+        origins = [self._journal.origin_of(t) if self._journal else -1 for t in parents]
+        for t in removed:
+            self._unlink(t)
+            self.alive[t] = False
+            if self._journal:
+                self._journal.removed(t)
+        self._free.extend(reversed(removed))
+        slots = []
+        for tet, origin in zip(added, origins):
+            t = self._new_slot()
+            self.tets[t] = tet
+            self.alive[t] = True
+            self._link(t, tet)
+            if self._journal:
+                self._journal.added(t, origin)
+            slots.append(t)
+        return slots
+
+    def add_vertex(self, parents: list[int], weights, origin_tet: int = -1) -> int:
+        """A new vertex at the barycentric combination of ``parents`` with ``weights`` (all
+        attributes: rest position, position, velocity). Returns its index."""
+        weights = np.asarray(weights, dtype=np.float64)
+        if self.vertex_count == len(self.vertex_data):
+            self.vertex_data = np.concatenate([self.vertex_data, np.zeros_like(self.vertex_data)])
+        v = self.vertex_count
+        self.vertex_data[v] = weights @ self.vertex_data[parents]
+        self.vertex_count += 1
+        self.vertex_tets.append(set())
+        if self._journal:
+            self._journal.vertex_from(v, parents, weights, origin_tet)
+        return v
+
+    def set_vertex(self, v: int, parents: list[int], weights) -> None:
+        """Move vertex v (all attributes) to the barycentric combination of ``parents``."""
+        weights = np.asarray(weights, dtype=np.float64)
+        if self._journal:
+            self._journal.vertex_from(v, parents, weights, -1)
+        self.vertex_data[v] = weights @ self.vertex_data[parents]
+
+    def retarget(self, t: int, old: int, new: int) -> None:
+        """Replace vertex ``old`` by ``new`` in element t (same geometry: a duplicate)."""
+        self._unlink(t)
+        self.tets[t][self.tets[t] == old] = new
+        self._link(t, self.tets[t].tolist())
+
+    def drop_unused_vertices(self) -> int:
+        """Remove vertices no element uses (after elements were deleted) and renumber the
+        rest, keeping their order. O(mesh size): for deletions, not for the cutter's
+        remeshing, which never orphans a vertex. Returns how many were dropped."""
+        keep = np.array([bool(s) for s in self.vertex_tets[: self.vertex_count]])
+        dropped = int((~keep).sum())
+        if not dropped:
+            return 0
+        if self._journal and self._journal.expression:
+            raise TopologyError("cannot drop vertices after creating or moving some in the same change")
+        remap = np.cumsum(keep) - 1
+        kept = np.flatnonzero(keep)
+        live = self.live_tets()
+        self.tets[live] = remap[self.tets[live]]
+        self.vertex_data[: len(kept)] = self.vertex_data[kept]
+        self.vertex_count = len(kept)
+        self.vertex_tets = [self.vertex_tets[v] for v in kept.tolist()]
+        self.face_tets = {face_key(*remap[list(k)].tolist()): owners for k, owners in self.face_tets.items()}
+        self.unsewn = {face_key(*remap[list(k)].tolist()) for k in self.unsewn}
+        if self._journal:
+            self._journal.vertex_renumber = kept if self._journal.vertex_renumber is None \
+                else self._journal.vertex_renumber[kept]
+        return dropped
+
+    # ------------------------------------------------------------- journal
+    def begin_change(self) -> None:
+        """Start recording a topological event (see :meth:`end_change`)."""
+        self._journal = _Journal(self)
+
+    def end_change(self):
+        """Stop recording and return the :class:`~wcut.topology.change.TopologyChange` from
+        the mesh at :meth:`begin_change` to the mesh now."""
+        from .change import TopologyChange
+
+        journal, self._journal = self._journal, None
+        if journal is None:
+            raise TopologyError("end_change() without begin_change()")
+        return TopologyChange.from_journal(journal, self)
+
+
+class _Journal:
+    """What happened since :meth:`TetTopology.begin_change`: enough to express every vertex
+    and element of the new mesh in terms of the old one."""
+
+    def __init__(self, topo: TetTopology):
+        self.base_slots = topo.live_tets()
+        self.base_vertex_count = topo.vertex_count
+        self.removed_base: set[int] = set()  # base slots no longer in the mesh
+        self.origin: dict[int, int] = {}   # new slot -> base slot it lies in
+        self.reshaped: set[int] = set()     # base slots whose rest shape may have changed
+        self.expression: dict[int, dict[int, float]] = {}  # vertex -> {base vertex: weight}
+        self.vertex_origin: dict[int, int] = {}
+        self.vertex_renumber: np.ndarray | None = None  # vertex -> base vertex after dropping
+        self.topo = topo
+
+    def origin_of(self, t: int) -> int:
+        return self.origin.get(t, t)
+
+    def removed(self, t: int) -> None:
+        if t in self.origin:
+            del self.origin[t]
+        else:
+            self.removed_base.add(t)
+
+    def added(self, t: int, origin: int) -> None:
+        self.origin[t] = origin
+
+    def vertex_from(self, v: int, parents, weights, origin_tet: int) -> None:
+        expr: dict[int, float] = {}
+        for p, w in zip(parents, weights.tolist()):
+            if w == 0.0:
+                continue
+            for q, wq in self.expression.get(p, {p: 1.0}).items():
+                expr[q] = expr.get(q, 0.0) + w * wq
+        self.expression[v] = expr
+        if origin_tet >= 0:
+            self.vertex_origin[v] = self.origin_of(origin_tet)
+        if v < self.base_vertex_count:  # a moved vertex reshapes its elements
+            self.reshaped.update(self.topo.vertex_tets[v])
