@@ -34,6 +34,30 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+def _cmd_cut(args) -> int:
+    from .cut.command import run_cut
+
+    report = run_cut(args.mesh, args.output, plane=args.plane, surface=args.surface, method=args.method,
+                     epsilon=args.epsilon, order=args.order, report_path=args.report)
+    print(f"nodes: {report['nodes_before']} -> {report['nodes_after']}")
+    print(f"elements: {report['elements_before']} -> {report['elements_after']} ({report['cut_elements']} cut)")
+    print(f"volume: {report['volume_before']:.9g} -> {report['volume_after']:.9g} m^3")
+    print(f"min dihedral: {report['min_dihedral_deg']:.2f} deg")
+    print(f"components: {report['components']}")
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _epsilon(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not 0.0 <= value < 0.5:
+        raise argparse.ArgumentTypeError(f"expected a value in [0, 0.5), got {value}")
+    return value
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -58,6 +82,23 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--frames", type=_positive_int, metavar="N", help="frames to simulate (default: duration * fps)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(func=_cmd_run)
+
+    cut = sub.add_parser("cut", help="cut a mesh file with a plane or a surface",
+                         description="Cut a rest-configuration tetrahedral mesh (any format meshio reads), "
+                                     "separate it along the cut and write the result and a JSON report.")
+    cut.add_argument("mesh", metavar="MESH_IN")
+    cut.add_argument("-o", "--output", metavar="MESH_OUT", required=True,
+                     help="output mesh (format from the extension: .vtu, .msh, .vtk, .mesh, ...)")
+    where = cut.add_mutually_exclusive_group(required=True)
+    where.add_argument("--plane", metavar="px,py,pz,nx,ny,nz", help="an infinite cut plane: point and normal (m)")
+    where.add_argument("--surface", metavar="TRIS.obj", help="a triangulated cut surface (Wavefront .obj, m)")
+    cut.add_argument("--method", choices=("paulus", "bielser", "snap", "delete"), default="paulus",
+                     help="remeshing method (default: paulus, thesis chapter 5)")
+    cut.add_argument("--epsilon", type=_epsilon, default=0.1, metavar="E",
+                     help="snapping threshold, fraction of the mean edge length (default: 0.1)")
+    cut.add_argument("--order", type=int, choices=(1, 2), default=1, help="element order (default: 1)")
+    cut.add_argument("--report", metavar="R.json", help="write the cut report as JSON")
+    cut.set_defaults(func=_cmd_cut)
 
     bench = sub.add_parser("bench", help="run the kernel and solver benchmarks",
                            description="Time the kernels and a full step on SOFA's benchmark beams, "

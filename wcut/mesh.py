@@ -329,3 +329,14 @@ def beam(nx: int, ny: int, nz: int, size=(1.0, 1.0, 1.0), *, origin=(0.0, 0.0, 0
         paths = np.array([[0, 4, 6, 7], [0, 4, 5, 7], [0, 2, 6, 7], [0, 2, 3, 7], [0, 1, 5, 7], [0, 1, 3, 7]])
         tets = corners[:, paths]
     return TetMesh(grid, tets.reshape(-1, 4), name=f"beam({nx}, {ny}, {nz})")
+
+
+def dihedral_angles(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """(M, 6) interior dihedral angles (degrees) of tetrahedra at their six edges."""
+    X = vertices[tets]
+    normals = np.stack([np.cross(X[:, f[1]] - X[:, f[0]], X[:, f[2]] - X[:, f[0]]) for f in TET_FACES], axis=1)
+    normals /= np.linalg.norm(normals, axis=2, keepdims=True)
+    # faces i and j meet at the edge of the two vertices that are neither i nor j
+    pairs = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+    cos = np.stack([-np.einsum("mk,mk->m", normals[:, i], normals[:, j]) for i, j in pairs], axis=1)
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))

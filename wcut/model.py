@@ -153,6 +153,20 @@ class Attachments:
                            np.concatenate([self.stiffness, other.stiffness]))
 
 
+def _rest_frames(rest: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``Dm^{-1}`` (M, 3, 3) and rest volumes (M,) of elements (rest positions in metres)."""
+    Dm = edge_matrices(rest, tets)
+    return np.linalg.inv(Dm), np.abs(np.linalg.det(Dm)) / 6.0
+
+
+def _untouched_vertices(change) -> np.ndarray:
+    """Vertices after a change that are vertices of before, unmoved (weight 1 on themselves)."""
+    new_or_moved = np.zeros(change.vertex_count_after, dtype=bool)
+    new_or_moved[change.new_vertices] = True
+    new_or_moved[change.moved_vertices[change.moved_vertices < change.vertex_count_after]] = True
+    return np.flatnonzero(~new_or_moved & (change.vertex_weights[:, 0] == 1.0))
+
+
 class State:
     """Time-varying data of a model (Newton's names).
 
@@ -224,10 +238,7 @@ class Model:
                  rayleigh_mass: float = 0.0, rayleigh_stiffness: float = 0.0, gravity=(0.0, 0.0, -9.81),
                  fixed=None, attachments: Attachments | None = None, device=None):
         self.device = wp.get_device(device)
-        self.mesh = mesh
         M, N = mesh.tet_count, mesh.vertex_count
-        self.particle_count = N
-        self.tet_count = M
 
         rho = _per_element(density, M, "density", 0.0, np.inf)
         E = _per_element(youngs_modulus, M, "youngs_modulus", 0.0, np.inf)
@@ -254,11 +265,16 @@ class Model:
             raise ModelError(f"attachments: vertex index {outside[0]} out of range 0..{N - 1}")
 
         rest = mesh.vertices.astype(np.float32).astype(np.float64)  # what the kernels see
-        Dm = edge_matrices(rest, mesh.tets)
-        volume = np.abs(np.linalg.det(Dm)) / 6.0
+        poses, volume = _rest_frames(rest, mesh.tets)
+        self._upload(mesh, rest, poses, volume, rho, E, nu, fixed_mask, attachments)
+
+    def _upload(self, mesh: TetMesh, rest, poses, volume, rho, E, nu, fixed_mask, attachments: Attachments) -> None:
+        """Derive masses and stiffness from the host data and create the device arrays."""
+        N, M = len(rest), len(mesh.tets)
+        self.mesh = mesh
+        self.particle_count, self.tet_count = N, M
         mu, lam = lame_parameters(E, nu)
-        mass = np.zeros(N)
-        np.add.at(mass, mesh.tets.ravel(), np.repeat(rho * volume / 4.0, 4))
+        mass = np.bincount(mesh.tets.ravel(), weights=np.repeat(rho * volume / 4.0, 4), minlength=N)
         rest_points = np.einsum("sj,sjk->sk", attachments.weights, rest[attachments.indices]) \
             if len(attachments) else np.zeros((0, 3))
 
@@ -269,7 +285,7 @@ class Model:
         self.particle_mass = wp.array(mass, dtype=float, device=d)
         self.particle_fixed = wp.array(fixed_mask, dtype=wp.int32, device=d)
         self.tet_indices = wp.array(mesh.tets.astype(np.int32), dtype=wp.vec4i, device=d)
-        self.tet_poses = wp.array(np.linalg.inv(Dm), dtype=wp.mat33, device=d)
+        self.tet_poses = wp.array(poses, dtype=wp.mat33, device=d)
         self.tet_rest_volume = wp.array(volume, dtype=float, device=d)
         self.tet_stiffness = wp.array(np.stack([volume * mu, volume * lam], axis=1), dtype=wp.vec2, device=d)
         self.tet_density = wp.array(rho, dtype=float, device=d)
@@ -279,6 +295,71 @@ class Model:
         self.attachment_weights = wp.array(attachments.weights.reshape(-1, 4), dtype=wp.vec4, device=d)
         self.attachment_stiffness = wp.array(attachments.stiffness, dtype=float, device=d)
         self.attachment_rest_points = wp.array(rest_points, dtype=wp.vec3, device=d)
+
+    def rebuild(self, mesh: TetMesh, change, state: State | None = None) -> tuple["Model", State | None]:
+        """The model of ``mesh``, derived from this one by ``change`` (a
+        :class:`wcut.topology.TopologyChange`), and ``state`` carried over.
+
+        Only elements whose rest shape changed get new rest frames; the others keep theirs, and
+        every element takes the material of its parent element. A vertex is fixed when all the
+        vertices it is interpolated from are. Attachments follow their vertices. The state's
+        positions and velocities are interpolated with the change's weights (exact for linear
+        elements), external forces stay on surviving vertices, rotations are inherited from
+        the parent element (the warm start of the polar decomposition).
+
+        Returns ``(model, state)``; the solver must be made again for the new model.
+        """
+        if change.vertex_count_before != self.particle_count or change.element_count_before != self.tet_count:
+            raise ModelError(f"rebuild: the change is from a mesh of {change.vertex_count_before} vertices and "
+                             f"{change.element_count_before} elements, the model has {self.particle_count} "
+                             f"and {self.tet_count}")
+        if change.vertex_count_after != mesh.vertex_count or change.element_count_after != mesh.tet_count:
+            raise ModelError("rebuild: the change does not lead to this mesh")
+        parent, changed = change.element_parent, change.element_rest_changed
+        rest = mesh.vertices.astype(np.float32).astype(np.float64)
+        poses = self.tet_poses.numpy()[parent]
+        volume = self.tet_rest_volume.numpy()[parent].astype(np.float64)
+        if changed.any():
+            poses[changed], volume[changed] = _rest_frames(rest, mesh.tets[changed])
+        rho, E, nu = (a.numpy()[parent].astype(np.float64)
+                      for a in (self.tet_density, self.tet_youngs_modulus, self.tet_poisson_ratio))
+        sources, weights = change.vertex_sources, change.vertex_weights
+        old_fixed = self.particle_fixed.numpy()
+        fixed_mask = np.all((old_fixed[sources] == 1) | (weights == 0.0), axis=1).astype(np.int32)
+
+        model = Model.__new__(Model)
+        model.device = self.device
+        model.rayleigh_mass, model.rayleigh_stiffness, model.gravity = \
+            self.rayleigh_mass, self.rayleigh_stiffness, self.gravity
+        model._upload(mesh, rest, poses, volume, rho, E, nu, fixed_mask,
+                      self._attachments_after(change))
+        if state is None:
+            return model, None
+        new = model.state()
+
+        def gather(array):
+            return np.einsum("vk,vkj->vj", weights, array.numpy()[sources])
+
+        new.particle_q.assign(gather(state.particle_q).astype(np.float32))
+        new.particle_qd.assign(gather(state.particle_qd).astype(np.float32))
+        kept = _untouched_vertices(change)
+        forces = np.zeros((mesh.vertex_count, 3), dtype=np.float32)
+        forces[kept] = state.particle_f.numpy()[sources[kept, 0]]
+        new.particle_f.assign(forces)
+        new.tet_rotation.assign(state.tet_rotation.numpy()[parent])
+        return model, new
+
+    def _attachments_after(self, change) -> Attachments:
+        """This model's attachments, re-indexed to the vertices after ``change`` (an
+        attachment on a deleted vertex loses that weight)."""
+        indices = self.attachment_indices.numpy().astype(np.int64)
+        weights = self.attachment_weights.numpy().astype(np.float64)
+        kept = _untouched_vertices(change)
+        old_to_new = np.full(change.vertex_count_before, -1, dtype=np.int64)
+        old_to_new[change.vertex_sources[kept, 0]] = kept
+        new_indices = old_to_new[indices] if len(indices) else indices
+        weights = np.where(new_indices >= 0, weights, 0.0)
+        return Attachments(np.maximum(new_indices, 0), weights, self.attachment_stiffness.numpy())
 
     @property
     def fixed_count(self) -> int:

@@ -1,0 +1,501 @@
+"""Separation surfaces: what a cutter intersects with the edges of a tetrahedral mesh.
+
+Thesis 5.1: the first step of a cut samples the separation surface S on the mesh edges: for
+every edge, the point where it crosses S and the unit normal of S there. For a partial cut
+(one or two crossed edges of a tetrahedron) the remaining edges are intersected with the
+*extension* of S (thesis 5.1.1). A :class:`CutSurface` answers both queries for M segments at
+once (host side, numpy float64, metres):
+
+- :meth:`CutSurface.crossings` -- first strict crossing of each segment with the bounded S;
+- :meth:`CutSurface.extension_crossings` -- the same against the extension of S;
+- :meth:`CutSurface.distance` and :meth:`CutSurface.bounds`.
+
+Crossing contract (the cutter relies on it). With a tolerance ``tol`` (m), an endpoint within
+``tol`` of S is *on* S and never makes its segment cross: a segment crosses only where it goes
+strictly from one side to the other, i.e. both endpoints are farther than ``tol`` from the
+plane of the crossed piece of S, with opposite signs, and farther than ``tol`` from the bounded
+S itself. A segment lying in S does not cross. The returned parameter ``t`` is in the open
+interval (0, 1), the crossing point is ``a + t (b - a)``, and the normal is the surface's own
+unit normal there (not flipped towards the segment: the side of ``a`` is
+``sign(dot(normal, a - p))``).
+
+Concrete surfaces: :class:`Plane` (infinite), :class:`TriangleSurface` (any triangulated
+surface, open or closed; Wavefront .obj I/O), :class:`Polygon` (bounded planar polygon) and
+:class:`SweptBlade` (the surface a straight blade sweeps over animation frames).
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from abc import ABC, abstractmethod
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..errors import WcutError
+from ..io import atomic_path
+
+#: Barycentric tolerance of the segment/triangle test: a crossing point up to this fraction of
+#: the triangle's height outside an edge still counts, so a segment through a shared edge or
+#: vertex of two triangles is never missed (it hits both; the first is reported once).
+BARY_TOL = 1e-9
+#: A triangle is degenerate when twice its area is below this times its longest edge squared.
+DEGENERATE_TOL = 1e-12
+#: A polygon is planar when no vertex is farther from its plane than this times its size.
+PLANARITY_TOL = 1e-9
+#: Triangles per broad-phase query, and point-triangle pairs per block of :meth:`nearest`.
+_TRI_CHUNK = 4096
+_PAIR_BLOCK = 1 << 20
+
+
+class SurfaceError(WcutError):
+    """A cut surface is invalid: zero normal, NaN, bad shape, non-planar polygon, empty or
+    degenerate triangulation, or an unreadable surface file."""
+
+
+def _array(x, shape: tuple, what: str) -> np.ndarray:
+    """``x`` as a finite float64 array of ``shape`` (-1 = any length), else SurfaceError."""
+    try:
+        arr = np.array(x, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise SurfaceError(f"{what} is not numeric: {exc}") from None
+    if arr.ndim != len(shape) or any(s not in (-1, n) for s, n in zip(shape, arr.shape)):
+        want = "(" + ", ".join("M" if s == -1 else str(s) for s in shape) + ")"
+        raise SurfaceError(f"{what} must have shape {want}, got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise SurfaceError(f"{what} contains NaN or infinite values")
+    return arr
+
+
+def _segments(a, b, tol) -> tuple[np.ndarray, np.ndarray, float]:
+    a, b = _array(a, (-1, 3), "segment starts a"), _array(b, (-1, 3), "segment ends b")
+    if a.shape != b.shape:
+        raise SurfaceError(f"segment starts {a.shape} and ends {b.shape} differ in shape")
+    if not (np.isfinite(tol) and tol >= 0):
+        raise SurfaceError(f"tolerance must be finite and >= 0 m, got {tol}")
+    return a, b, float(tol)
+
+
+def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", u, v)
+
+
+def _open_unit(t: np.ndarray) -> np.ndarray:
+    """Clamp crossing parameters into the open interval (0, 1) (rounding can reach 0 or 1)."""
+    return np.clip(t, np.nextafter(0.0, 1.0), np.nextafter(1.0, 0.0))
+
+
+def _plane_crossings(a, b, tol, origin, normal) -> tuple[np.ndarray, np.ndarray]:
+    """Strict crossings of segments with planes (one plane, or one per segment).
+
+    A segment crosses when its signed distances d_a, d_b (m) to the plane through ``origin``
+    with unit ``normal`` have opposite signs and |d| > tol at both ends; t = d_a / (d_a - d_b).
+    """
+    normal = np.broadcast_to(normal, a.shape)
+    da, db = _dot(a - origin, normal), _dot(b - origin, normal)
+    hit = (np.abs(da) > tol) & (np.abs(db) > tol) & ((da > 0) != (db > 0))
+    t = np.full(len(a), np.nan)
+    n = np.full(a.shape, np.nan)
+    t[hit] = _open_unit(da[hit] / (da[hit] - db[hit]))
+    n[hit] = normal[hit]
+    return t, n
+
+
+def _degenerate(v0: np.ndarray, v1: np.ndarray, v2: np.ndarray) -> np.ndarray:
+    """Which triangles (rows of corners, m) have (numerically) zero area."""
+    area2 = np.linalg.norm(np.cross(v1 - v0, v2 - v0), axis=-1)
+    longest = np.max([np.sum((v1 - v0) ** 2, -1), np.sum((v2 - v1) ** 2, -1), np.sum((v0 - v2) ** 2, -1)], 0)
+    return ~(area2 > DEGENERATE_TOL * longest)
+
+
+def _point_segment_distance(p, a, b) -> np.ndarray:
+    ab = b - a
+    s = np.clip(_dot(p - a, ab) / np.maximum(_dot(ab, ab), np.finfo(float).tiny), 0.0, 1.0)
+    return np.linalg.norm(p - a - s[:, None] * ab, axis=1)
+
+
+def _point_triangle_distance(p, v0, v1, v2, n) -> np.ndarray:
+    """Distances (m) from points to triangles (rows), ``n`` the triangles' unit normals.
+
+    If a point projects into its triangle the distance is |plane distance|, else the distance
+    to the nearest of the three edges.
+    """
+    d = _dot(p - v0, n)
+    q = p - d[:, None] * n
+    inside = np.ones(len(p), dtype=bool)
+    for vi, vj in ((v0, v1), (v1, v2), (v2, v0)):
+        inside &= _dot(np.cross(vj - vi, q - vi), n) >= 0.0
+    edges = np.min([_point_segment_distance(p, v0, v1), _point_segment_distance(p, v1, v2),
+                    _point_segment_distance(p, v2, v0)], axis=0)
+    return np.where(inside, np.abs(d), edges)
+
+
+class CutSurface(ABC):
+    """A separation surface S (thesis 5.1). See the module docstring for the crossing contract."""
+
+    @abstractmethod
+    def crossings(self, a, b, tol: float) -> tuple[np.ndarray, np.ndarray]:
+        """First strict crossing of each segment a[i] -> b[i] (M, 3) (m) with the bounded S.
+
+        Returns ``t`` (M,) in (0, 1), the smallest crossing parameter, nan where there is none,
+        and ``normal`` (M, 3), the unit normal of S at that crossing (nan rows where none).
+        Endpoints within ``tol`` (m) of S are on S and never make a crossing.
+        """
+
+    @abstractmethod
+    def extension_crossings(self, a, b, tol: float) -> tuple[np.ndarray, np.ndarray]:
+        """As :meth:`crossings`, against the extension of S used for partial cuts (thesis 5.1.1)."""
+
+    @abstractmethod
+    def distance(self, points) -> np.ndarray:
+        """Unsigned distance (M,) (m) from each point (M, 3) to the bounded surface."""
+
+    @abstractmethod
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounding box ``(lower (3,), upper (3,))`` (m) of the bounded surface."""
+
+
+class Plane(CutSurface):
+    """The infinite plane through ``point`` (m) with normal ``normal`` (normalised here).
+
+    Its extension is itself; its bounds are infinite.
+    """
+
+    def __init__(self, point, normal):
+        self.point = _array(point, (3,), "plane point")
+        normal = _array(normal, (3,), "plane normal")
+        length = np.linalg.norm(normal)
+        if not length > 0.0:
+            raise SurfaceError("plane normal is the zero vector")
+        self.normal = normal / length
+
+    def signed_distance(self, points) -> np.ndarray:
+        """Signed distance (M,) (m) of points (M, 3): positive on the side the normal points to."""
+        return (_array(points, (-1, 3), "points") - self.point) @ self.normal
+
+    def crossings(self, a, b, tol: float) -> tuple[np.ndarray, np.ndarray]:
+        a, b, tol = _segments(a, b, tol)
+        return _plane_crossings(a, b, tol, self.point, self.normal)
+
+    extension_crossings = crossings
+
+    def distance(self, points) -> np.ndarray:
+        return np.abs(self.signed_distance(points))
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.full(3, -np.inf), np.full(3, np.inf)
+
+
+class TriangleSurface(CutSurface):
+    """A triangulated surface, open or closed: ``vertices`` (N, 3) (m), ``triangles`` (K, 3).
+
+    A triangle's normal is its unit normal by the right-hand rule, so crossings report the
+    orientation the triangles were given in. Crossings use a Möller–Trumbore-equivalent test
+    (plane of the triangle, then barycentric coordinates with :data:`BARY_TOL`), after a
+    broad phase (segment bounding box against the surface box, then a k-d tree of segment
+    midpoints queried with each triangle's bounding sphere), so the cost follows the number of
+    segments near the surface; it grows with the longest segment near the surface.
+
+    Its extension (:meth:`extension_crossings`) is, for each segment, the plane of the
+    triangle nearest to the segment's midpoint.
+    """
+
+    def __init__(self, vertices, triangles):
+        self.vertices = _array(vertices, (-1, 3), "surface vertices")
+        tris = np.asarray(triangles)
+        if tris.ndim != 2 or tris.shape[1] != 3 or not (tris.size == 0 or np.issubdtype(tris.dtype, np.integer)):
+            raise SurfaceError(f"surface triangles must be an integer array of shape (K, 3), got {tris.shape}")
+        if len(tris) == 0:
+            raise SurfaceError("empty surface: no triangles")
+        bad = np.flatnonzero(((tris < 0) | (tris >= len(self.vertices))).any(axis=1))
+        if bad.size:
+            raise SurfaceError(f"triangle {bad[0]} has a vertex index out of range 0..{len(self.vertices) - 1}")
+        self.triangles = tris.astype(np.int64)
+        self._v = self.vertices[self.triangles]  # (K, 3, 3) corners
+        v0, v1, v2 = self._v[:, 0], self._v[:, 1], self._v[:, 2]
+        bad = np.flatnonzero(_degenerate(v0, v1, v2))
+        if bad.size:
+            raise SurfaceError(f"triangle {bad[0]} is degenerate (zero area)")
+        area_normal = np.cross(v1 - v0, v2 - v0)
+        self._area2 = np.linalg.norm(area_normal, axis=1)
+        self.normals = area_normal / self._area2[:, None]
+        self._centers = self._v.mean(axis=1)
+        self._radii = np.linalg.norm(self._v - self._centers[:, None], axis=2).max(axis=1)
+        self._tree: cKDTree | None = None
+
+    def __len__(self) -> int:
+        return len(self.triangles)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        corners = self._v.reshape(-1, 3)
+        return corners.min(axis=0), corners.max(axis=0)
+
+    def _pair_crossings(self, a, b, j, tol) -> np.ndarray:
+        """Crossing parameter (nan where none) of segment rows a -> b with triangles ``j``."""
+        v, n = self._v[j], self.normals[j]
+        da, db = _dot(a - v[:, 0], n), _dot(b - v[:, 0], n)
+        hit = (np.abs(da) > tol) & (np.abs(db) > tol) & ((da > 0) != (db > 0))
+        t = np.full(len(j), np.nan)
+        t[hit] = da[hit] / (da[hit] - db[hit])
+        p = a[hit] + t[hit, None] * (b[hit] - a[hit])
+        inside = np.ones(len(p), dtype=bool)
+        for k in range(3):  # edge functions = barycentric coordinates times twice the area
+            vi, vj = v[hit, k], v[hit, (k + 1) % 3]
+            inside &= _dot(np.cross(vj - vi, p - vi), n[hit]) >= -BARY_TOL * self._area2[j[hit]]
+        t[np.flatnonzero(hit)[~inside]] = np.nan
+        return t
+
+    def crossings(self, a, b, tol: float) -> tuple[np.ndarray, np.ndarray]:
+        a, b, tol = _segments(a, b, tol)
+        t = np.full(len(a), np.nan)
+        normal = np.full(a.shape, np.nan)
+        lo, hi = self.bounds()
+        near = np.flatnonzero((np.minimum(a, b) <= hi + tol).all(1) & (np.maximum(a, b) >= lo - tol).all(1))
+        if near.size == 0:
+            return t, normal
+        half = 0.5 * np.linalg.norm(b[near] - a[near], axis=1).max()
+        tree = cKDTree(0.5 * (a[near] + b[near]))
+        found = []
+        for start in range(0, len(self), _TRI_CHUNK):
+            tri = np.arange(start, min(start + _TRI_CHUNK, len(self)))
+            lists = tree.query_ball_point(self._centers[tri], self._radii[tri] + half + tol)
+            counts = np.fromiter(map(len, lists), np.int64, len(lists))
+            seg = near[np.fromiter(itertools.chain.from_iterable(lists), np.int64, counts.sum())]
+            j = np.repeat(tri, counts)
+            ts = self._pair_crossings(a[seg], b[seg], j, tol)
+            ok = ~np.isnan(ts)
+            found.append((seg[ok], ts[ok], j[ok]))
+        seg, ts, j = (np.concatenate(x) for x in zip(*found))
+        # An endpoint within tol of the bounded surface is on it: its segment does not cross.
+        cand = np.unique(seg)
+        on = cand[(self.distance(a[cand]) <= tol) | (self.distance(b[cand]) <= tol)]
+        keep = ~np.isin(seg, on)
+        seg, ts, j = seg[keep], ts[keep], j[keep]
+        order = np.lexsort((ts, seg))  # per segment, smallest t first
+        seg, ts, j = seg[order], ts[order], j[order]
+        first = np.r_[True, seg[1:] != seg[:-1]] if seg.size else np.zeros(0, dtype=bool)
+        t[seg[first]] = _open_unit(ts[first])
+        normal[seg[first]] = self.normals[j[first]]
+        return t, normal
+
+    def extension_crossings(self, a, b, tol: float) -> tuple[np.ndarray, np.ndarray]:
+        """Crossings with, per segment, the plane of the triangle nearest its midpoint."""
+        a, b, tol = _segments(a, b, tol)
+        _, j = self.nearest(0.5 * (a + b))
+        return _plane_crossings(a, b, tol, self._v[j, 0], self.normals[j])
+
+    def nearest(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """Distance (M,) (m) from each point to the surface and the index (M,) of the nearest triangle.
+
+        Exact: the k nearest triangle centres (k doubling) are tried until the k-th centre is
+        farther than the best distance plus the largest triangle radius.
+        """
+        p = _array(points, (-1, 3), "points")
+        if self._tree is None:
+            self._tree = cKDTree(self._centers)
+        dist, idx = np.full(len(p), np.inf), np.zeros(len(p), dtype=np.int64)
+        todo, k, rmax = np.arange(len(p)), min(8, len(self)), self._radii.max()
+        while todo.size:
+            step, pending = max(1, _PAIR_BLOCK // k), []
+            for start in range(0, todo.size, step):
+                rows = todo[start:start + step]
+                dc, jc = (x.reshape(len(rows), k) for x in self._tree.query(p[rows], k=k))
+                v = self._v[jc.ravel()]
+                d = _point_triangle_distance(np.repeat(p[rows], k, axis=0), v[:, 0], v[:, 1], v[:, 2],
+                                             self.normals[jc.ravel()]).reshape(len(rows), k)
+                best = d.argmin(axis=1)
+                dist[rows], idx[rows] = np.take_along_axis(d, best[:, None], 1)[:, 0], jc[np.arange(len(rows)), best]
+                if k < len(self):  # a triangle beyond the k-th centre might still be nearer
+                    pending.append(rows[dc[:, -1] - rmax < dist[rows]])
+            todo = np.concatenate(pending) if pending else todo[:0]
+            k = min(2 * k, len(self))
+        return dist, idx
+
+    def distance(self, points) -> np.ndarray:
+        return self.nearest(points)[0]
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> TriangleSurface:
+        """Read a Wavefront .obj file: ``v x y z`` and ``f`` lines (m).
+
+        Faces may use ``a``, ``a/b``, ``a//c``, ``a/b/c`` and negative (relative) indices; faces
+        with more than three vertices are fan-triangulated; other lines are ignored.
+        """
+        path = os.fspath(path)
+        try:
+            with open(path, encoding="utf-8") as f:
+                lines = f.readlines()
+        except FileNotFoundError:
+            raise SurfaceError(f"surface file {path} does not exist") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise SurfaceError(f"surface file {path} cannot be read: {exc}") from None
+        vertices, triangles = [], []
+        for number, line in enumerate(lines, 1):
+            tokens = line.split("#", 1)[0].split()
+            if tokens and tokens[0] == "v":
+                try:
+                    xyz = [float(x) for x in tokens[1:4]]
+                except ValueError:
+                    xyz = []
+                if len(xyz) != 3 or not np.isfinite(xyz).all():
+                    raise SurfaceError(f"{path}:{number}: bad vertex line {line.strip()!r}")
+                vertices.append(xyz)
+            elif tokens and tokens[0] == "f":
+                face = [_obj_index(tok, len(vertices), f"{path}:{number}") for tok in tokens[1:]]
+                if len(face) < 3:
+                    raise SurfaceError(f"{path}:{number}: a face needs at least 3 vertices")
+                triangles += [(face[0], face[i], face[i + 1]) for i in range(1, len(face) - 1)]
+        if not triangles:
+            raise SurfaceError(f"{path}: empty surface, no faces")
+        try:
+            return cls(np.array(vertices), np.array(triangles, dtype=np.int64))
+        except SurfaceError as exc:
+            raise SurfaceError(f"{path}: {exc}") from None
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the surface as a Wavefront .obj file (m), atomically."""
+        with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as f:
+            f.writelines(f"v {x!r} {y!r} {z!r}\n" for x, y, z in self.vertices.tolist())
+            f.writelines(f"f {i + 1} {j + 1} {k + 1}\n" for i, j, k in self.triangles.tolist())
+
+
+def _obj_index(token: str, count: int, where: str) -> int:
+    """0-based vertex index of an .obj face token (``a``, ``a/b``, ``a//c``, ``-1``)."""
+    try:
+        i = int(token.split("/", 1)[0])
+    except ValueError:
+        raise SurfaceError(f"{where}: bad face vertex {token!r}") from None
+    i = i - 1 if i > 0 else count + i
+    if not 0 <= i < count:
+        raise SurfaceError(f"{where}: face vertex {token!r} out of range (have {count} vertices)")
+    return i
+
+
+class Polygon(TriangleSurface):
+    """A bounded planar polygon: ``vertices`` (K >= 3, 3) (m) in order, convex or not.
+
+    The vertices must lie in one plane within :data:`PLANARITY_TOL` times the polygon's size
+    (they are then projected onto it exactly). The normal follows the vertex order by the
+    right-hand rule (Newell's method). The polygon is ear-clipped in its plane, so it behaves
+    as a :class:`TriangleSurface` whose triangles all carry the polygon normal; its extension
+    is the supporting plane :attr:`plane`.
+    """
+
+    def __init__(self, vertices):
+        v = _array(vertices, (-1, 3), "polygon vertices")
+        if len(v) < 3:
+            raise SurfaceError(f"a polygon needs at least 3 vertices, got {len(v)}")
+        center = v.mean(axis=0)
+        area_normal = 0.5 * np.cross(v - center, np.roll(v, -1, axis=0) - center).sum(axis=0)
+        size = np.linalg.norm(v.max(axis=0) - v.min(axis=0))
+        if not np.linalg.norm(area_normal) > DEGENERATE_TOL * size**2:
+            raise SurfaceError("polygon has zero area: its normal is the zero vector")
+        self.plane = Plane(center, area_normal)
+        n = self.plane.normal
+        offset = (v - center) @ n
+        worst = int(np.argmax(np.abs(offset)))
+        if abs(offset[worst]) > PLANARITY_TOL * size:
+            raise SurfaceError(f"polygon is not planar: vertex {worst} is {abs(offset[worst]):.3g} m off its plane")
+        v = v - offset[:, None] * n
+        u = np.cross(n, np.eye(3)[np.argmin(np.abs(n))])
+        u /= np.linalg.norm(u)
+        xy = (v - center) @ np.stack([u, np.cross(n, u)], axis=1)  # counter-clockwise about n
+        super().__init__(v, _ear_clip(xy))
+        self.normals[:] = n
+
+    def extension_crossings(self, a, b, tol: float) -> tuple[np.ndarray, np.ndarray]:
+        """Crossings with the supporting plane of the polygon."""
+        return self.plane.crossings(a, b, tol)
+
+
+def _cross2(p, q, r) -> np.ndarray:
+    """z of (q - p) x (r - p) for 2D points (rows or single points)."""
+    return (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0])
+
+
+def _ear_clip(xy: np.ndarray) -> np.ndarray:
+    """Triangles (K-2 at most, 3) of a simple counter-clockwise 2D polygon, by ear clipping.
+
+    Collinear vertices are dropped first (they do not change the shape).
+    """
+    eps = DEGENERATE_TOL * np.sum(np.ptp(xy, axis=0) ** 2)
+    turn = _cross2(np.roll(xy, 1, axis=0), xy, np.roll(xy, -1, axis=0))
+    ring = [int(i) for i in np.flatnonzero(np.abs(turn) > eps)]
+    triangles = []
+    while len(ring) > 3:
+        for k in range(len(ring)):
+            i0, i1, i2 = ring[k - 1], ring[k], ring[(k + 1) % len(ring)]
+            if _cross2(xy[i0], xy[i1], xy[i2]) <= eps:
+                continue  # reflex corner: not an ear
+            others = xy[[i for i in ring if i not in (i0, i1, i2)]]
+            inside = (_cross2(xy[i0], xy[i1], others) >= -eps) & (_cross2(xy[i1], xy[i2], others) >= -eps) \
+                & (_cross2(xy[i2], xy[i0], others) >= -eps)
+            if not inside.any():
+                triangles.append((i0, i1, i2))
+                del ring[k]
+                break
+        else:
+            raise SurfaceError("polygon is self-intersecting: it cannot be triangulated")
+    if len(ring) < 3 or _cross2(*xy[ring]) <= eps:
+        raise SurfaceError("polygon is self-intersecting or has zero area")
+    return np.array(triangles + [tuple(ring)], dtype=np.int64)
+
+
+class SweptBlade:
+    """The surface swept by a straight blade over animation frames.
+
+    ``blade`` (F, 2, 3) (m) holds the blade's two endpoints at frames 0..F-1. Between frames
+    k-1 and k it sweeps the quad (blade[k-1, 0], blade[k-1, 1], blade[k, 1], blade[k, 0]),
+    split into the triangles (q0, q1, q2) and (q0, q2, q3); its normal is blade direction x
+    motion (right-hand rule). Zero-area triangles (a blade that does not move, or turns about
+    an endpoint) are left out. Consecutive quads share their vertices, so the swept surface
+    has no cracks.
+    """
+
+    def __init__(self, blade):
+        self.blade = _array(blade, (-1, 2, 3), "blade endpoints")
+        if len(self.blade) == 0:
+            raise SurfaceError("a swept blade needs at least one frame")
+
+    @classmethod
+    def from_tip_path(cls, tip, handle_offset) -> SweptBlade:
+        """A rigid blade translated along a path, like a scalpel held at a fixed orientation.
+
+        At frame k the blade is the segment from ``tip[k]`` to ``tip[k] + handle_offset``
+        (``tip`` (F, 3), ``handle_offset`` (3,), m).
+        """
+        tip = _array(tip, (-1, 3), "blade tip path")
+        offset = _array(handle_offset, (3,), "blade handle offset")
+        if not np.linalg.norm(offset) > 0.0:
+            raise SurfaceError("blade handle offset is the zero vector: the blade has no length")
+        return cls(np.stack([tip, tip + offset], axis=1))
+
+    @property
+    def frame_count(self) -> int:
+        """Number of frames F."""
+        return len(self.blade)
+
+    def _check(self, frame: int) -> int:
+        if not 1 <= frame < self.frame_count:
+            raise SurfaceError(f"blade frame {frame} out of range 1..{self.frame_count - 1}")
+        return int(frame)
+
+    @staticmethod
+    def _sweep(blade: np.ndarray) -> TriangleSurface | None:
+        vertices = blade.reshape(-1, 3)  # blade[k, e] is vertex 2k + e
+        k = 2 * np.arange(len(blade) - 1)
+        q0, q1, q2, q3 = k, k + 1, k + 3, k + 2
+        tris = np.stack([np.stack([q0, q1, q2], 1), np.stack([q0, q2, q3], 1)], axis=1).reshape(-1, 3)
+        tris = tris[~_degenerate(*(vertices[tris[:, c]] for c in range(3)))]
+        return TriangleSurface(vertices, tris) if len(tris) else None
+
+    def increment(self, frame: int) -> TriangleSurface | None:
+        """The quad swept between ``frame - 1`` and ``frame``; None if the blade did not move."""
+        frame = self._check(frame)
+        return self._sweep(self.blade[frame - 1:frame + 1])
+
+    def surface_until(self, frame: int) -> TriangleSurface | None:
+        """Everything swept from frame 0 to ``frame`` (>= 1); None if the blade never moved."""
+        frame = self._check(frame)
+        return self._sweep(self.blade[:frame + 1])
