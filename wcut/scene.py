@@ -21,6 +21,12 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
     [simulation]    duration (s), fps (frames per second written)
     [output]        path, stress_colors (bool), stress_max (Pa: top of the colour scale; default:
                     the largest von Mises stress of the run), up_axis ("Z" or "Y")
+    [cut]           a blade that cuts the object progressively (thesis chapter 5):
+                    method ("paulus", "bielser", "snap", "delete"), epsilon (snapping threshold,
+                    fraction of the mean edge length), frames = [f0, f1, ...] (key frames),
+                    blade = [[[x,y,z],[x,y,z]], ...] (its two endpoints at each key frame, m;
+                    linear in between). From f0 on, each frame cuts along the surface the
+                    blade swept since the previous frame, in the current configuration.
 """
 
 from __future__ import annotations
@@ -116,6 +122,8 @@ _SCHEMA = {
     "output": {"path": (_string, None), "stress_colors": (_boolean, True), "stress_max": (_number, None),
                "up_axis": (_string, "Z")},
 }
+_CUT_SCHEMA = {"method": (_string, "paulus"), "epsilon": (_number, 0.1), "frames": (_list_of(_integer), None),
+               "blade": (None, None)}
 _FORCE_SCHEMA = {"box": (_box, None), "total": (_vec3, None)}
 _ATTACHMENT_SCHEMA = {"point": (_vec3, None), "vertex": (_integer, None), "target": (_vec3, None),
                   "stiffness": (_number, None)}
@@ -152,6 +160,7 @@ class Scene:
     solver: dict = field(default_factory=dict)
     simulation: dict = field(default_factory=dict)
     output: dict = field(default_factory=dict)
+    cut: dict | None = None
 
     @property
     def frame_count(self) -> int:
@@ -177,7 +186,7 @@ def load_scene(path: str | os.PathLike) -> Scene:
 
 
 def _parse(raw: dict, path: Path) -> Scene:
-    top = set(_SCHEMA) | {"name", "attachments"}
+    top = set(_SCHEMA) | {"name", "attachments", "cut"}
     unknown = sorted(set(raw) - top)
     if unknown:
         raise SceneError(f"{unknown[0]}: unknown key (expected one of: {', '.join(sorted(top))})")
@@ -239,9 +248,43 @@ def _parse(raw: dict, path: Path) -> Scene:
     else:  # from the file name, made a valid USD identifier
         name = re.sub(r"\W", "_", path.stem)
         name = name if re.match(r"[A-Za-z_]", name) else f"_{name}"
+    cut = _parse_cut(raw["cut"]) if "cut" in raw else None
     return Scene(path=path, name=name, mesh=mesh, material=sections["material"], damping=sections["damping"],
                  constraints=sections["constraints"], loads=sections["loads"], forces=forces, attachments=attachments,
-                 solver=solver, simulation=sim, output=out)
+                 solver=solver, simulation=sim, output=out, cut=cut)
+
+
+def _parse_cut(raw) -> dict:
+    from .cut import METHODS
+
+    cut = _table(raw, _CUT_SCHEMA, "cut")
+    if cut["method"] not in METHODS:
+        raise SceneError(f"cut.method: unknown method {cut['method']!r} (expected one of {', '.join(METHODS)})")
+    if not 0.0 <= cut["epsilon"] < 0.5:
+        raise SceneError(f"cut.epsilon: must be in [0, 0.5), got {cut['epsilon']}")
+    frames = cut["frames"]
+    if frames is None or len(frames) < 2:
+        raise SceneError("cut.frames: give at least two key frames")
+    if frames[0] < 0 or any(b <= a for a, b in zip(frames, frames[1:])):
+        raise SceneError(f"cut.frames: expected increasing frame numbers >= 0, got {frames}")
+    blade = cut["blade"]
+    if not isinstance(blade, list) or len(blade) != len(frames):
+        raise SceneError(f"cut.blade: expected one blade (two endpoints) per key frame ({len(frames)})")
+    for i, ends in enumerate(blade):
+        if not isinstance(ends, list) or len(ends) != 2:
+            raise SceneError(f"cut.blade[{i}]: expected two endpoints [[x,y,z],[x,y,z]], got {ends!r}")
+        for j, point in enumerate(ends):
+            _vec3(point, f"cut.blade[{i}][{j}]")
+    cut["blade"] = np.asarray(blade, dtype=np.float64)
+    return cut
+
+
+def blade_path(cut: dict) -> np.ndarray:
+    """(F, 2, 3) blade endpoints (m) at every frame from the first key frame to the last."""
+    keys = np.asarray(cut["frames"], dtype=np.float64)
+    frames = np.arange(cut["frames"][0], cut["frames"][-1] + 1, dtype=np.float64)
+    flat = cut["blade"].reshape(len(keys), 6)
+    return np.stack([np.interp(frames, keys, flat[:, c]) for c in range(6)], axis=1).reshape(-1, 2, 3)
 
 
 def build_mesh(scene: Scene):
@@ -304,6 +347,7 @@ class RunResult:
     nodes: int
     elements: int
     output: Path | None
+    cut_events: int = 0
 
 
 def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: int | None = None,
@@ -345,16 +389,20 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     surface = model.mesh.boundary()
     colored = scene.output["stress_colors"]
     # Frames are kept until the end so that every frame is coloured on one stress scale.
-    points, stresses = [], []
+    points, triangles, stresses = [], [], []
 
     def record():
         points.append(state.particle_q.numpy()[surface.vertex_ids].copy())
+        triangles.append(surface.local_triangles)
         if colored:
             stresses.append(vertex_von_mises(model, state)[surface.vertex_ids])
 
+    blade = _Blade(scene.cut, model.mesh) if scene.cut else None
+    cut_events = 0
+
     show = sys.stderr.isatty() if progress is None else progress
     bar = _progress(frames, show, scene.name)
-    step_seconds = 0.0
+    step_seconds, frame = 0.0, 0
     record()
     try:
         for _ in range(frames):
@@ -365,6 +413,19 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
             wp.synchronize_device(model.device)
             step_seconds += time.perf_counter() - start
             solver.check_finite()
+            frame += 1
+            change = blade.cut(frame, state) if blade else None
+            if change is not None:
+                cut_events += 1
+                targets = control.attachment_target.numpy()
+                model, state = model.rebuild(blade.topology.to_mesh(), change, state)
+                next_state, control = model.state(), model.control()
+                next_state.particle_f.assign(state.particle_f)
+                control.attachment_target.assign(targets)
+                solver = SolverCorotational(model, cg_iterations=settings["cg_iterations"],
+                                            cg_tolerance=settings["cg_tolerance"],
+                                            rotation_iterations=settings["rotation_iterations"])
+                surface = model.mesh.boundary()
             record()
             bar.update(1)
     finally:
@@ -373,9 +434,39 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     with writer:
         for frame, frame_points in enumerate(points):
             colors = stress_colors(stresses[frame], vmin=0.0, vmax=max(stress_max, 1e-30)) if colored else None
-            writer.write_frame(scene.name, frame, frame_points, surface.local_triangles, colors)
+            writer.write_frame(scene.name, frame, frame_points, triangles[frame], colors)
     return RunResult(frames=frames, steps=frames * substeps, mean_step_ms=1e3 * step_seconds / (frames * substeps),
-                     nodes=model.particle_count, elements=model.tet_count, output=output)
+                     nodes=model.particle_count, elements=model.tet_count, output=output, cut_events=cut_events)
+
+
+class _Blade:
+    """The scene's blade: cuts the object where it swept since the last frame.
+
+    The cut is made against everything swept so far (so faces at the front of an earlier,
+    partial cut can open now), but only near this frame's sweep, so its cost stays local."""
+
+    def __init__(self, cut: dict, mesh):
+        from .cut import Cutter, SweptBlade
+        from .topology import TetTopology
+
+        self.first = cut["frames"][0]
+        self.sweep = SweptBlade(blade_path(cut))
+        self.topology = TetTopology(mesh)
+        self.cutter = Cutter(self.topology, method=cut["method"], epsilon=cut["epsilon"])
+
+    def cut(self, frame: int, state):
+        """The TopologyChange of this frame's cut, or None when nothing changed."""
+        k = frame - self.first
+        if not 1 <= k < self.sweep.frame_count:
+            return None
+        increment = self.sweep.increment(k)
+        if increment is None:
+            return None
+        n = self.topology.vertex_count
+        self.topology.positions[:] = state.particle_q.numpy()[:n]
+        self.topology.velocities[:] = state.particle_qd.numpy()[:n]
+        change = self.cutter.cut(self.sweep.surface_until(k), bounds=increment.bounds()).change
+        return None if change.is_empty else change
 
 
 class _NoBar:

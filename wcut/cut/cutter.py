@@ -40,7 +40,7 @@ from ..errors import WcutError
 from ..mesh import TET_FACES
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
                         flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, unsew_face)
-from .surface import CutSurface
+from .surface import CutSurface, Plane
 
 METHODS = ("paulus", "bielser", "snap", "delete")
 
@@ -172,17 +172,19 @@ class Cutter:
         return ON_SURFACE_TOL * self.mean_edge_length
 
     def _candidates(self, surface: CutSurface, bounds) -> np.ndarray:
-        """Live elements near the surface (a vertex within the box grown by twice the
-        longest edge), so the cost follows the surface, not the mesh."""
+        """Live elements with a vertex near the surface (within the longest edge of a plane,
+        or inside its box grown by twice the longest edge): every element the surface
+        crosses, found with a few vectorised passes so the cut's cost follows the surface."""
         topo = self.topology
-        slots = topo.live_tets()
-        lower, upper = surface.bounds() if bounds is None else bounds
-        lower = np.asarray(lower, float) - self._margin
-        upper = np.asarray(upper, float) + self._margin
-        if np.all(np.isinf(lower)) and np.all(np.isinf(upper)):
-            return slots
         x = topo.positions
-        near = np.all((x >= lower) & (x <= upper), axis=1)
+        if isinstance(surface, Plane) and bounds is None:
+            near = np.abs(surface.signed_distance(x)) <= self._margin
+        else:
+            lower, upper = surface.bounds() if bounds is None else bounds
+            lower = np.asarray(lower, float) - self._margin
+            upper = np.asarray(upper, float) + self._margin
+            near = np.all((x >= lower) & (x <= upper), axis=1)
+        slots = topo.live_tets()
         return slots[near[topo.tets[slots]].any(axis=1)]
 
     def sample(self, surface: CutSurface, slots) -> _Sampling:

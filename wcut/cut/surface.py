@@ -44,9 +44,10 @@ BARY_TOL = 1e-9
 DEGENERATE_TOL = 1e-12
 #: A polygon is planar when no vertex is farther from its plane than this times its size.
 PLANARITY_TOL = 1e-9
-#: Triangles per broad-phase query, and point-triangle pairs per block of :meth:`nearest`.
-_TRI_CHUNK = 4096
-_PAIR_BLOCK = 1 << 20
+#: Most pieces the broad phase of a triangulated surface cuts it into.
+MAX_PIECES = 1 << 21
+#: Query points per block of a broad-phase k-d tree query (bounds the memory of one query).
+_BLOCK = 4096
 
 
 class SurfaceError(WcutError):
@@ -148,8 +149,12 @@ class CutSurface(ABC):
         """As :meth:`crossings`, against the extension of S used for partial cuts (thesis 5.1.1)."""
 
     @abstractmethod
-    def distance(self, points) -> np.ndarray:
-        """Unsigned distance (M,) (m) from each point (M, 3) to the bounded surface."""
+    def distance(self, points, limit: float = np.inf) -> np.ndarray:
+        """Unsigned distance (M,) (m) from each point (M, 3) to the bounded surface.
+
+        Distances above ``limit`` (m) are reported as inf; a finite limit keeps the cost of a
+        triangulated surface local.
+        """
 
     @abstractmethod
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -180,8 +185,10 @@ class Plane(CutSurface):
 
     extension_crossings = crossings
 
-    def distance(self, points) -> np.ndarray:
-        return np.abs(self.signed_distance(points))
+    def distance(self, points, limit: float = np.inf) -> np.ndarray:
+        d = np.abs(self.signed_distance(points))
+        d[d > limit] = np.inf
+        return d
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return np.full(3, -np.inf), np.full(3, np.inf)
@@ -220,9 +227,7 @@ class TriangleSurface(CutSurface):
         area_normal = np.cross(v1 - v0, v2 - v0)
         self._area2 = np.linalg.norm(area_normal, axis=1)
         self.normals = area_normal / self._area2[:, None]
-        self._centers = self._v.mean(axis=1)
-        self._radii = np.linalg.norm(self._v - self._centers[:, None], axis=2).max(axis=1)
-        self._tree: cKDTree | None = None
+        self._tree: cKDTree | None = None  # broad phase, built on first use by _pieces()
 
     def __len__(self) -> int:
         return len(self.triangles)
@@ -246,6 +251,57 @@ class TriangleSurface(CutSurface):
         t[np.flatnonzero(hit)[~inside]] = np.nan
         return t
 
+    def _pieces(self) -> cKDTree:
+        """k-d tree of the centres of small pieces of the triangles (broad phase), built once.
+
+        A triangle (v0, e1 its shortest edge, e2) is covered by the lattice cells
+        ``v0 + [i, i+1]/n1 e1 + [j, j+1]/n2 e2`` that meet it, n1, n2 = ceil(edge length /
+        spacing), the spacing being the typical triangle size (sqrt of mean area, doubled until
+        at most :data:`MAX_PIECES` cells). Every point of a triangle is within ``self._reach``
+        (m) of one of its cell centres, so a triangle within distance r of a point has a piece
+        centre within r + reach of it. Slivers (a swept blade) are cut along their length, so
+        queries stay local.
+        """
+        if self._tree is not None:
+            return self._tree
+        v = self._v
+        lengths = np.linalg.norm(v - np.roll(v, -1, axis=1), axis=2)  # edge k: corner k -> k+1
+        order = (np.argmin(lengths, axis=1)[:, None] + np.arange(3)) % 3
+        v = np.take_along_axis(v, order[:, :, None], axis=1)
+        e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+        l1, l2 = np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)
+        spacing = np.sqrt(0.5 * self._area2.mean())
+        while True:
+            n1, n2 = np.ceil(l1 / spacing).astype(np.int64), np.ceil(l2 / spacing).astype(np.int64)
+            if np.sum(n1 * n2) <= MAX_PIECES:
+                break
+            spacing *= 2.0
+        counts = n1 * n2
+        tri = np.repeat(np.arange(len(self)), counts)
+        local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        i, j = local // n2[tri], local % n2[tri]
+        keep = i * n2[tri] + j * n1[tri] < (n1 * n2)[tri]  # the cell's lower corner is in the triangle
+        tri, i, j = tri[keep], i[keep], j[keep]
+        d1, d2 = e1 / n1[:, None], e2 / n2[:, None]
+        centres = v[tri, 0] + (i + 0.5)[:, None] * d1[tri] + (j + 0.5)[:, None] * d2[tri]
+        half_diagonal = 0.5 * np.maximum(np.linalg.norm(d1 + d2, axis=1), np.linalg.norm(d1 - d2, axis=1))
+        self._reach = float(half_diagonal.max()) * (1.0 + 1e-9)
+        self._piece_tri = tri
+        self._tree = cKDTree(centres)
+        return self._tree
+
+    def _near_pairs(self, points, radius) -> tuple[np.ndarray, np.ndarray]:
+        """Unique (point row, triangle) pairs with the triangle possibly within ``radius`` (M,) m."""
+        tree, rows, tris = self._pieces(), [], []
+        for start in range(0, len(points), _BLOCK):
+            lists = tree.query_ball_point(points[start:start + _BLOCK], radius[start:start + _BLOCK] + self._reach)
+            counts = np.fromiter(map(len, lists), np.int64, len(lists))
+            rows.append(np.repeat(np.arange(start, start + len(lists)), counts))
+            tris.append(self._piece_tri[np.fromiter(itertools.chain.from_iterable(lists), np.int64, counts.sum())])
+        key = np.sort(np.concatenate(rows) * len(self) + np.concatenate(tris))
+        key = key[np.r_[True, key[1:] != key[:-1]]] if key.size else key  # unique, sorted
+        return key // len(self), key % len(self)
+
     def crossings(self, a, b, tol: float) -> tuple[np.ndarray, np.ndarray]:
         a, b, tol = _segments(a, b, tol)
         t = np.full(len(a), np.nan)
@@ -254,22 +310,14 @@ class TriangleSurface(CutSurface):
         near = np.flatnonzero((np.minimum(a, b) <= hi + tol).all(1) & (np.maximum(a, b) >= lo - tol).all(1))
         if near.size == 0:
             return t, normal
-        half = 0.5 * np.linalg.norm(b[near] - a[near], axis=1).max()
-        tree = cKDTree(0.5 * (a[near] + b[near]))
-        found = []
-        for start in range(0, len(self), _TRI_CHUNK):
-            tri = np.arange(start, min(start + _TRI_CHUNK, len(self)))
-            lists = tree.query_ball_point(self._centers[tri], self._radii[tri] + half + tol)
-            counts = np.fromiter(map(len, lists), np.int64, len(lists))
-            seg = near[np.fromiter(itertools.chain.from_iterable(lists), np.int64, counts.sum())]
-            j = np.repeat(tri, counts)
-            ts = self._pair_crossings(a[seg], b[seg], j, tol)
-            ok = ~np.isnan(ts)
-            found.append((seg[ok], ts[ok], j[ok]))
-        seg, ts, j = (np.concatenate(x) for x in zip(*found))
+        rows, j = self._near_pairs(0.5 * (a[near] + b[near]), 0.5 * np.linalg.norm(b[near] - a[near], axis=1) + tol)
+        seg = near[rows]
+        ts = self._pair_crossings(a[seg], b[seg], j, tol)
+        ok = ~np.isnan(ts)
+        seg, ts, j = seg[ok], ts[ok], j[ok]
         # An endpoint within tol of the bounded surface is on it: its segment does not cross.
         cand = np.unique(seg)
-        on = cand[(self.distance(a[cand]) <= tol) | (self.distance(b[cand]) <= tol)]
+        on = cand[(self.distance(a[cand], tol) <= tol) | (self.distance(b[cand], tol) <= tol)]
         keep = ~np.isin(seg, on)
         seg, ts, j = seg[keep], ts[keep], j[keep]
         order = np.lexsort((ts, seg))  # per segment, smallest t first
@@ -285,35 +333,31 @@ class TriangleSurface(CutSurface):
         _, j = self.nearest(0.5 * (a + b))
         return _plane_crossings(a, b, tol, self._v[j, 0], self.normals[j])
 
-    def nearest(self, points) -> tuple[np.ndarray, np.ndarray]:
-        """Distance (M,) (m) from each point to the surface and the index (M,) of the nearest triangle.
+    def nearest(self, points, limit: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """Distance (M,) (m) from each point (M, 3) to the surface and the nearest triangle (M,).
 
-        Exact: the k nearest triangle centres (k doubling) are tried until the k-th centre is
-        farther than the best distance plus the largest triangle radius.
+        Exact: the triangle of the nearest piece centre gives an upper bound u; every triangle
+        with a piece centre within min(u, limit) + reach is then measured. Points farther than
+        ``limit`` (m) get distance inf and triangle -1. The cost grows with min(distance, limit)
+        (steeply for dense slivers), so pass a limit when only near points matter.
         """
         p = _array(points, (-1, 3), "points")
-        if self._tree is None:
-            self._tree = cKDTree(self._centers)
-        dist, idx = np.full(len(p), np.inf), np.zeros(len(p), dtype=np.int64)
-        todo, k, rmax = np.arange(len(p)), min(8, len(self)), self._radii.max()
-        while todo.size:
-            step, pending = max(1, _PAIR_BLOCK // k), []
-            for start in range(0, todo.size, step):
-                rows = todo[start:start + step]
-                dc, jc = (x.reshape(len(rows), k) for x in self._tree.query(p[rows], k=k))
-                v = self._v[jc.ravel()]
-                d = _point_triangle_distance(np.repeat(p[rows], k, axis=0), v[:, 0], v[:, 1], v[:, 2],
-                                             self.normals[jc.ravel()]).reshape(len(rows), k)
-                best = d.argmin(axis=1)
-                dist[rows], idx[rows] = np.take_along_axis(d, best[:, None], 1)[:, 0], jc[np.arange(len(rows)), best]
-                if k < len(self):  # a triangle beyond the k-th centre might still be nearer
-                    pending.append(rows[dc[:, -1] - rmax < dist[rows]])
-            todo = np.concatenate(pending) if pending else todo[:0]
-            k = min(2 * k, len(self))
+        dist, idx = np.full(len(p), np.inf), np.full(len(p), -1, dtype=np.int64)
+        if len(p) == 0:
+            return dist, idx
+        first = self._piece_tri[self._pieces().query(p)[1]]
+        upper = _point_triangle_distance(p, *self._v[first].transpose(1, 0, 2), self.normals[first])
+        rows, j = self._near_pairs(p, np.minimum(upper, limit))
+        v = self._v[j]
+        d = _point_triangle_distance(p[rows], v[:, 0], v[:, 1], v[:, 2], self.normals[j])
+        order = np.lexsort((d, rows))
+        rows, j, d = rows[order], j[order], d[order]
+        first = np.r_[True, rows[1:] != rows[:-1]] & (d <= limit)
+        dist[rows[first]], idx[rows[first]] = d[first], j[first]
         return dist, idx
 
-    def distance(self, points) -> np.ndarray:
-        return self.nearest(points)[0]
+    def distance(self, points, limit: float = np.inf) -> np.ndarray:
+        return self.nearest(points, limit)[0]
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> TriangleSurface:

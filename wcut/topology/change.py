@@ -60,21 +60,18 @@ class TopologyChange:
     def from_journal(cls, journal, topo) -> "TopologyChange":
         base_slots = journal.base_slots
         slots = topo.live_tets()
-        e_b = len(slots)
-        # before-index of a base slot is its rank among the base slots
-        element_parent = np.empty(e_b, dtype=np.int64)
-        rest_changed = np.zeros(e_b, dtype=bool)
-        added = []
-        for i, s in enumerate(slots.tolist()):
-            origin = journal.origin.get(s)
-            if origin is None:
-                element_parent[i] = s
-                rest_changed[i] = s in journal.reshaped
-            else:
-                element_parent[i] = origin
-                rest_changed[i] = True
-                added.append(i)
-        element_parent = np.searchsorted(base_slots, element_parent)
+        origin = np.arange(topo.slot_count, dtype=np.int64)  # slot -> base slot it lies in
+        added_mask = np.zeros(topo.slot_count, dtype=bool)
+        reshaped = np.zeros(topo.slot_count, dtype=bool)
+        if journal.origin:
+            new_slots = np.fromiter(journal.origin.keys(), dtype=np.int64, count=len(journal.origin))
+            origin[new_slots] = np.fromiter(journal.origin.values(), dtype=np.int64, count=len(journal.origin))
+            added_mask[new_slots] = True
+        if journal.reshaped:
+            reshaped[list(journal.reshaped)] = True
+        element_parent = np.searchsorted(base_slots, origin[slots])
+        rest_changed = added_mask[slots] | reshaped[slots]
+        added = np.flatnonzero(added_mask[slots])
         removed = np.searchsorted(base_slots, np.array(sorted(journal.removed_base), dtype=np.int64))
 
         v_a, v_b = journal.base_vertex_count, topo.vertex_count
@@ -95,10 +92,10 @@ class TopologyChange:
         moved = np.array(sorted(v for v in journal.expression if v < v_a), dtype=np.int64)
         return cls(
             vertex_count_before=v_a, vertex_count_after=v_b,
-            element_count_before=len(base_slots), element_count_after=e_b,
+            element_count_before=len(base_slots), element_count_after=len(slots),
             vertex_sources=sources, vertex_weights=weights, vertex_parent_element=parent_element,
             new_vertices=np.arange(v_a, max(v_a, v_b), dtype=np.int64), moved_vertices=moved,
             element_parent=element_parent, element_rest_changed=rest_changed,
-            removed_elements=removed, added_elements=np.array(added, dtype=np.int64),
+            removed_elements=removed, added_elements=added,
         )
 

@@ -52,8 +52,13 @@ def face_key(a: int, b: int, c: int) -> tuple[int, int, int]:
 
 
 def signed_volume(p0, p1, p2, p3) -> float:
-    """Signed volume (m^3) of the tetrahedron p0 p1 p2 p3: det[p1-p0, p2-p0, p3-p0] / 6."""
-    return float(np.dot(np.cross(p1 - p0, p2 - p0), p3 - p0)) / 6.0
+    """Signed volume (m^3) of the tetrahedron p0 p1 p2 p3: det[p1-p0, p2-p0, p3-p0] / 6.
+    (Plain float arithmetic: numpy's per-call overhead dominates for one tetrahedron.)"""
+    x0, y0, z0 = p0[0], p0[1], p0[2]
+    ax, ay, az = p1[0] - x0, p1[1] - y0, p1[2] - z0
+    bx, by, bz = p2[0] - x0, p2[1] - y0, p2[2] - z0
+    cx, cy, cz = p3[0] - x0, p3[1] - y0, p3[2] - z0
+    return float(ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)) / 6.0
 
 
 def tet_quality(points: np.ndarray) -> float:
@@ -134,7 +139,7 @@ class TetTopology:
 
     def rest_volume(self, t: int) -> float:
         """Signed rest volume (m^3) of element slot t."""
-        return signed_volume(*self.vertex_data[self.tets[t], REST])
+        return signed_volume(*self.vertex_data[self.tets[t], REST].tolist())
 
     def neighbors(self, t: int, key: tuple[int, int, int]) -> list[int]:
         """The other element across face ``key`` of element t ([] on the boundary or unsewn)."""
@@ -208,8 +213,8 @@ class TetTopology:
             polygon.pop()
         if len(tets) != len(around):
             raise TopologyError(f"edge ({a}, {b}): its elements form more than one fan")
-        x = self.vertex_data
-        if signed_volume(x[a, REST], x[b, REST], x[polygon[0], REST], x[polygon[1], REST]) < 0:
+        x = self.vertex_data[[a, b, polygon[0], polygon[1]], REST].tolist()
+        if signed_volume(*x) < 0:
             tets.reverse()
             polygon.reverse()
             if closed:  # keep polygon[i], polygon[i+1] the corners of tets[i]

@@ -46,6 +46,13 @@ def _point(topo: TetTopology, parents, weights) -> np.ndarray:
     return np.asarray(weights, float) @ topo.vertex_data[parents, REST]
 
 
+def _volume_with(rest: np.ndarray, tet: list[int], v: int, point: np.ndarray) -> float:
+    """Signed volume of ``tet`` with vertex v placed at ``point``."""
+    corners = rest[tet].tolist()
+    corners[tet.index(v)] = point.tolist()
+    return signed_volume(*corners)
+
+
 def _substitute(tet: list[int], old: int, new: int) -> list[int]:
     return [new if v == old else v for v in tet]
 
@@ -85,14 +92,11 @@ def flip23(topo: TetTopology, key: tuple[int, int, int]) -> list[int]:
     d = next(v for v in topo.tet(t0) if v not in key)
     e = next(v for v in topo.tet(t1) if v not in key)
     a, b, c = key
-    rest = topo.vertex_data[:, REST]
-    added = []
-    for u, w in ((a, b), (b, c), (c, a)):
-        tet = [d, e, u, w]
-        added.append(tet if signed_volume(*rest[tet]) > 0 else [d, e, w, u])
+    rest = dict(zip((a, b, c, d, e), topo.vertex_data[[a, b, c, d, e], REST].tolist()))
+    volumes = [signed_volume(rest[d], rest[e], rest[u], rest[w]) for u, w in ((a, b), (b, c), (c, a))]
+    added = [[d, e, u, w] if v > 0 else [d, e, w, u] for (u, w), v in zip(((a, b), (b, c), (c, a)), volumes)]
     # All three must lie on the same side of their edge d-e: same orientation of (u, w).
-    signs = {signed_volume(*rest[[d, e, u, w]]) > 0 for u, w in ((a, b), (b, c), (c, a))}
-    if len(signs) != 1:
+    if len({v > 0 for v in volumes}) != 1:
         raise TopologyError(f"flip 2-3 of face {key}: edge ({d}, {e}) does not cross the face")
     _check(topo, added, f"flip 2-3 of face {key}")
     return topo.replace_tets([t0, t1], added)
@@ -156,7 +160,7 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     added = [[u, v, w, b] for u, v, w in triangles] + [[u, w, v, a] for u, v, w in triangles]
     if not closed:
         before = sum(topo.rest_volume(t) for t in ring)
-        after = sum(signed_volume(*rest[t]) for t in added)
+        after = sum(signed_volume(*rest[t].tolist()) for t in added)
         if abs(after - before) > volume_tolerance * before and not allow_volume_change:
             raise TopologyError(f"general flip of boundary edge ({a}, {b}) would change the volume by "
                                 f"{(after - before) / before:.1e} (its boundary faces are not coplanar)")
@@ -173,9 +177,9 @@ def move_vertex(topo: TetTopology, v: int, parents, weights, *, volume_tolerance
     old = [topo.tet(t) for t in around]
     _check(topo, [_substitute(tet, v, -1) for tet in old], f"moving vertex {v}", {-1: target})
     if topo.is_boundary_vertex(v):
+        before = sum(topo.rest_volume(t) for t in around)
         rest = topo.vertex_data[:, REST]
-        before = sum(signed_volume(*rest[t]) for t in old)
-        after = sum(signed_volume(*[target if u == v else rest[u] for u in t]) for t in old)
+        after = sum(_volume_with(rest, t, v, target) for t in old)
         if abs(after - before) > volume_tolerance * before:
             raise TopologyError(f"moving boundary vertex {v} would change the volume by "
                                 f"{(after - before) / before:.1e}")
