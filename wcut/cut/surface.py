@@ -73,9 +73,13 @@ def _segments(a, b, tol) -> tuple[np.ndarray, np.ndarray, float]:
     a, b = _array(a, (-1, 3), "segment starts a"), _array(b, (-1, 3), "segment ends b")
     if a.shape != b.shape:
         raise SurfaceError(f"segment starts {a.shape} and ends {b.shape} differ in shape")
-    if not (np.isfinite(tol) and tol >= 0):
-        raise SurfaceError(f"tolerance must be finite and >= 0 m, got {tol}")
-    return a, b, float(tol)
+    try:
+        value = float(tol)
+    except (TypeError, ValueError):
+        value = np.nan
+    if not (np.isfinite(value) and value >= 0):
+        raise SurfaceError(f"tolerance must be a finite number >= 0 m, got {tol!r}")
+    return a, b, value
 
 
 def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -198,11 +202,16 @@ class TriangleSurface(CutSurface):
     """A triangulated surface, open or closed: ``vertices`` (N, 3) (m), ``triangles`` (K, 3).
 
     A triangle's normal is its unit normal by the right-hand rule, so crossings report the
-    orientation the triangles were given in. Crossings use a Möller–Trumbore-equivalent test
-    (plane of the triangle, then barycentric coordinates with :data:`BARY_TOL`), after a
-    broad phase (segment bounding box against the surface box, then a k-d tree of segment
-    midpoints queried with each triangle's bounding sphere), so the cost follows the number of
-    segments near the surface; it grows with the longest segment near the surface.
+    orientation the triangles were given in. A segment crosses a triangle when its endpoints
+    are farther than ``tol`` from the triangle's plane on opposite sides and the crossing point
+    is inside the triangle up to :data:`BARY_TOL` (a Möller–Trumbore-equivalent test), and
+    neither endpoint is within ``tol`` of the surface. A segment through a shared edge or
+    vertex is reported once; one that only touches a fold line from one side may be reported.
+
+    Broad phase: segments outside the surface's box are skipped; the others are matched to
+    triangles through a k-d tree of small pieces of the triangles (see :meth:`_pieces`), so
+    the cost follows the number of segments near the surface (about 0.05 s for 50k segments
+    and 2k triangles, 0.4 s when the triangles are slivers of a slowly swept blade).
 
     Its extension (:meth:`extension_crossings`) is, for each segment, the plane of the
     triangle nearest to the segment's midpoint.
@@ -345,8 +354,9 @@ class TriangleSurface(CutSurface):
         dist, idx = np.full(len(p), np.inf), np.full(len(p), -1, dtype=np.int64)
         if len(p) == 0:
             return dist, idx
-        first = self._piece_tri[self._pieces().query(p)[1]]
-        upper = _point_triangle_distance(p, *self._v[first].transpose(1, 0, 2), self.normals[first])
+        tree = self._pieces()
+        guess = self._piece_tri[tree.query(p)[1]]
+        upper = _point_triangle_distance(p, *self._v[guess].transpose(1, 0, 2), self.normals[guess])
         rows, j = self._near_pairs(p, np.minimum(upper, limit))
         v = self._v[j]
         d = _point_triangle_distance(p[rows], v[:, 0], v[:, 1], v[:, 2], self.normals[j])
@@ -461,9 +471,17 @@ def _cross2(p, q, r) -> np.ndarray:
 def _ear_clip(xy: np.ndarray) -> np.ndarray:
     """Triangles (K-2 at most, 3) of a simple counter-clockwise 2D polygon, by ear clipping.
 
-    Collinear vertices are dropped first (they do not change the shape).
+    Polygons whose non-adjacent edges meet are rejected; collinear vertices are dropped first
+    (they do not change the shape).
     """
     eps = DEGENERATE_TOL * np.sum(np.ptp(xy, axis=0) ** 2)
+    p, q = xy[:, None], np.roll(xy, -1, axis=0)[:, None]  # edge i: p[i] -> q[i]
+    cuts = (_cross2(p, q, p.transpose(1, 0, 2)) * _cross2(p, q, q.transpose(1, 0, 2)) <= 0)
+    k = np.arange(len(xy))
+    apart = (k[:, None] != k) & ((k[:, None] + 1) % len(xy) != k) & ((k + 1) % len(xy) != k[:, None])
+    if np.any(cuts & cuts.T & apart):
+        i, j = np.argwhere(cuts & cuts.T & apart)[0]
+        raise SurfaceError(f"polygon is self-intersecting: edges {i} and {j} meet")
     turn = _cross2(np.roll(xy, 1, axis=0), xy, np.roll(xy, -1, axis=0))
     ring = [int(i) for i in np.flatnonzero(np.abs(turn) > eps)]
     triangles = []

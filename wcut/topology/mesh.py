@@ -396,5 +396,4 @@ class _Journal:
         self.expression[v] = expr
         if origin_tet >= 0:
             self.vertex_origin[v] = self.origin_of(origin_tet)
-        if v < self.base_vertex_count:  # a moved vertex reshapes its elements
-            self.reshaped.update(self.topo.vertex_tets[v])
+        self.reshaped.update(self.topo.vertex_tets[v])  # a moved vertex reshapes its elements

@@ -42,15 +42,28 @@ def _check(topo: TetTopology, tets: list[list[int]], what: str, extra: dict | No
         raise TopologyError(f"{what}: element {tets[worst]} would be {state} (quality {q[worst]:.2e})")
 
 
+def _weights(weights, count: int, what: str) -> np.ndarray:
+    """Barycentric weights: ``count`` finite numbers summing to 1."""
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    if len(w) != count or not np.isfinite(w).all() or abs(w.sum() - 1.0) > 1e-9:
+        raise TopologyError(f"{what}: expected {count} finite barycentric weights summing to 1, got {w.tolist()}")
+    return w
+
+
 def _point(topo: TetTopology, parents, weights) -> np.ndarray:
     return np.asarray(weights, float) @ topo.vertex_data[parents, REST]
 
 
-def _volume_with(rest: np.ndarray, tet: list[int], v: int, point: np.ndarray) -> float:
-    """Signed volume of ``tet`` with vertex v placed at ``point``."""
-    corners = rest[tet].tolist()
-    corners[tet.index(v)] = point.tolist()
-    return signed_volume(*corners)
+def _containing(topo: TetTopology, removed: list[int], added: list[list[int]]) -> list[int]:
+    """For each new element, the removed element that contains its centroid (the one whose
+    smallest barycentric coordinate of it is largest): its parent in the change record."""
+    rest = topo.vertex_data[:, REST]
+    centroids = rest[np.asarray(added)].mean(axis=1)
+    corners = rest[topo.tets[removed]]                       # (R, 4, 3)
+    Dm = (corners[:, :3] - corners[:, 3:]).transpose(0, 2, 1)
+    xi = np.einsum("rij,arj->ari", np.linalg.inv(Dm), centroids[:, None, :] - corners[None, :, 3])
+    bary_min = np.minimum(xi.min(axis=2), 1.0 - xi.sum(axis=2))   # (A, R)
+    return [removed[i] for i in np.argmax(bary_min, axis=1)]
 
 
 def _substitute(tet: list[int], old: int, new: int) -> list[int]:
@@ -61,6 +74,7 @@ def split_tet(topo: TetTopology, t: int, weights) -> tuple[int, list[int]]:
     """1-4 split (thesis figure 5.1): a new vertex at barycentric ``weights`` of element t
     replaces it by four elements sharing the vertex. Returns (vertex, new elements)."""
     tet = topo.tet(t)
+    weights = _weights(weights, 4, f"split 1-4 of element {t}")
     added = [_substitute(tet, v, -1) for v in tet]
     _check(topo, added, f"split 1-4 of element {t}", {-1: _point(topo, tet, weights)})
     p = topo.add_vertex(tet, weights, origin_tet=t)
@@ -75,6 +89,7 @@ def split_face(topo: TetTopology, key: tuple[int, int, int], weights) -> tuple[i
     owners = list(topo.face_tets.get(key, ()))
     if not owners:
         raise TopologyError(f"split of face {key}: no such face")
+    weights = _weights(weights, 3, f"split of face {key}")
     added = [_substitute(topo.tet(t), v, -1) for t in owners for v in key]
     _check(topo, added, f"split of face {key}", {-1: _point(topo, list(key), weights)})
     p = topo.add_vertex(list(key), weights, origin_tet=owners[0])
@@ -99,7 +114,7 @@ def flip23(topo: TetTopology, key: tuple[int, int, int]) -> list[int]:
     if len({v > 0 for v in volumes}) != 1:
         raise TopologyError(f"flip 2-3 of face {key}: edge ({d}, {e}) does not cross the face")
     _check(topo, added, f"flip 2-3 of face {key}")
-    return topo.replace_tets([t0, t1], added)
+    return topo.replace_tets([t0, t1], added, _containing(topo, [t0, t1], added))
 
 
 def bisect_edge(topo: TetTopology, a: int, b: int, s: float) -> tuple[int, list[int]]:
@@ -108,6 +123,8 @@ def bisect_edge(topo: TetTopology, a: int, b: int, s: float) -> tuple[int, list[
     around = sorted(topo.edge_tets(a, b))
     if not around:
         raise TopologyError(f"bisection of edge ({a}, {b}): no such edge")
+    if not 0.0 < s < 1.0:
+        raise TopologyError(f"bisection of edge ({a}, {b}): the parameter must be in (0, 1), got {s}")
     added = []
     for t in around:
         tet = topo.tet(t)
@@ -164,26 +181,42 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
         if abs(after - before) > volume_tolerance * before and not allow_volume_change:
             raise TopologyError(f"general flip of boundary edge ({a}, {b}) would change the volume by "
                                 f"{(after - before) / before:.1e} (its boundary faces are not coplanar)")
-    return topo.replace_tets(ring, added)
+    return topo.replace_tets(ring, added, _containing(topo, ring, added))
 
 
-def move_vertex(topo: TetTopology, v: int, parents, weights, *, volume_tolerance: float = 1e-12) -> None:
+def move_vertex(topo: TetTopology, v: int, parents, weights) -> None:
     """Move vertex v (snapping, thesis 5.1.3) to the barycentric combination of ``parents``.
 
     Refused when an element around v would invert or flatten, or, for a boundary vertex,
-    when the move would change the enclosed volume (it must slide within a flat boundary)."""
+    unless all its boundary faces lie in one plane and the target is in that plane (so the
+    vertex slides within a flat boundary and the volume is kept)."""
+    weights = _weights(weights, len(parents), f"moving vertex {v}")
     target = _point(topo, parents, weights)
     around = sorted(topo.vertex_tets[v])
-    old = [topo.tet(t) for t in around]
-    _check(topo, [_substitute(tet, v, -1) for tet in old], f"moving vertex {v}", {-1: target})
-    if topo.is_boundary_vertex(v):
-        before = sum(topo.rest_volume(t) for t in around)
-        rest = topo.vertex_data[:, REST]
-        after = sum(_volume_with(rest, t, v, target) for t in old)
-        if abs(after - before) > volume_tolerance * before:
-            raise TopologyError(f"moving boundary vertex {v} would change the volume by "
-                                f"{(after - before) / before:.1e}")
+    _check(topo, [_substitute(topo.tet(t), v, -1) for t in around], f"moving vertex {v}", {-1: target})
+    normals = _boundary_normals(topo, v)
+    if len(normals):
+        rest = topo.vertex_data[v, REST]
+        scale = np.linalg.norm(target - rest) + 1e-300
+        flat = np.abs(np.cross(normals, normals[0])).max() <= 1e-12
+        if not flat or abs(float(np.dot(normals[0], target - rest))) > 1e-12 * scale:
+            raise TopologyError(f"moving boundary vertex {v} would take it off its boundary"
+                                + ("" if flat else " (its boundary faces are not coplanar)"))
     topo.set_vertex(v, list(parents), weights)
+
+
+def _boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
+    """Unit normals (K, 3) of the boundary faces around vertex v."""
+    rest = topo.vertex_data[:, REST]
+    normals = []
+    for t in topo.vertex_tets[v]:
+        tet = topo.tet(t)
+        for local in TET_FACES.tolist():
+            tri = [tet[i] for i in local]
+            if v in tri and len(topo.face_tets[face_key(*tri)]) == 1:
+                n = np.cross(rest[tri[1]] - rest[tri[0]], rest[tri[2]] - rest[tri[0]])
+                normals.append(n / np.linalg.norm(n))
+    return np.array(normals).reshape(-1, 3)
 
 
 def unsew_face(topo: TetTopology, key: tuple[int, int, int]) -> None:
