@@ -191,3 +191,42 @@ def test_run_requires_a_scene(capsys):
         main(["run"])
     assert info.value.code == 2
     assert "SCENE.toml" in capsys.readouterr().err
+
+
+def test_cut_command_writes_mesh_and_report(tmp_path):
+    import json
+
+    from wcut.cli import main
+    from wcut.mesh import TetMesh, beam
+
+    source = tmp_path / "beam.vtu"
+    beam(6, 2, 2, size=(0.3, 0.1, 0.1)).save(source)
+    out, report = tmp_path / "cut.vtu", tmp_path / "r.json"
+    for method in ("paulus", "bielser", "snap", "delete"):
+        assert main(["cut", str(source), "-o", str(out), "--plane", "0.151,0,0,1,0.1,0", "--method", method,
+                     "--epsilon", "0.1", "--report", str(report)]) == 0
+        data = json.loads(report.read_text())
+        assert set(data) >= {"nodes_before", "nodes_after", "elements_before", "elements_after", "cut_elements",
+                             "volume_before", "volume_after", "min_dihedral_deg", "components"}
+        cut = TetMesh.load(out)
+        assert (cut.vertex_count, cut.tet_count) == (data["nodes_after"], data["elements_after"])
+        if method in ("paulus", "bielser"):
+            assert data["components"] == 2
+            assert abs(data["volume_after"] - data["volume_before"]) < 1e-9 * data["volume_before"]
+
+
+def test_cut_command_bad_input_exits_2(tmp_path, capsys):
+    from wcut.cli import main
+    from wcut.mesh import beam
+
+    source = tmp_path / "beam.vtu"
+    beam(2, 2, 2).save(source)
+    out = tmp_path / "cut.vtu"
+    cases = [(["--plane", "5,0,0,1,0,0"], "misses the mesh"), (["--plane", "1,2"], "six numbers"),
+             (["--surface", str(tmp_path / "none.obj")], "none.obj"), (["--plane", "0.5,0,0,1,0,0", "--order", "2"],
+                                                                       "order 2")]
+    for extra, message in cases:
+        assert main(["cut", str(source), "-o", str(out)] + extra) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1
+        assert not out.exists()

@@ -408,3 +408,42 @@ def test_output_is_checked_before_the_simulation(tmp_path, tiny_scene, monkeypat
     else:
         with pytest.raises(WcutError):
             run_scene(load_scene(tiny_scene), tmp_path / output, frames=1, progress=False)
+
+
+BLADE = """
+[cut]
+method = "paulus"
+epsilon = 0.2
+frames = [1, 5]
+blade = [[[0.101, -0.01, 0.07], [0.101, 0.07, 0.07]], [[0.101, -0.01, -0.02], [0.101, 0.07, -0.02]]]
+"""
+
+
+def test_scene_blade_cuts_and_keeps_running(tmp_path, write_scene):
+    from conftest import TINY_SCENE
+
+    from wcut.scene import load_scene, run_scene
+
+    path = write_scene(tmp_path, TINY_SCENE + BLADE, "blade.toml")
+    result = run_scene(load_scene(path), tmp_path / "blade.usdc", frames=8, progress=False)
+    assert result.cut_events >= 1
+    assert result.elements >= 80 and result.nodes > 45  # snapped onto the node plane, then split
+
+
+@pytest.mark.parametrize("text, key", [
+    ('[cut]\nframes = [1]\nblade = [[[0,0,0],[1,0,0]]]', "cut.frames"),
+    ('[cut]\nmethod = "laser"\nframes = [1, 2]\nblade = [[[0,0,0],[1,0,0]], [[0,0,1],[1,0,1]]]', "cut.method"),
+    ('[cut]\nframes = [1, 2]\nblade = [[[0,0,0],[1,0,0]]]', "cut.blade"),
+    ('[cut]\nframes = [3, 2]\nblade = [[[0,0,0],[1,0,0]], [[0,0,1],[1,0,1]]]', "cut.frames"),
+    ('[cut]\nepsilon = 0.9\nframes = [1, 2]\nblade = [[[0,0,0],[1,0,0]], [[0,0,1],[1,0,1]]]', "cut.epsilon"),
+    ('[cut]\nknife = 1', "cut.knife"),
+])
+def test_bad_cut_section_names_the_key(tmp_path, write_scene, text, key):
+    from conftest import TINY_SCENE
+
+    from wcut.errors import SceneError
+    from wcut.scene import load_scene
+
+    path = write_scene(tmp_path, TINY_SCENE + "\n" + text + "\n", "bad.toml")
+    with pytest.raises(SceneError, match=key.replace(".", r"\.")):
+        load_scene(path)

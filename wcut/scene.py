@@ -442,12 +442,15 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
 class _Blade:
     """The scene's blade: cuts the object where it swept since the last frame.
 
-    The cut is made against everything swept so far (so faces at the front of an earlier,
-    partial cut can open now), but only near this frame's sweep, so its cost stays local."""
+    Each frame cuts, in the current configuration, along the surface swept since the last
+    frame; the cuts are progressive (see :meth:`wcut.cut.Cutter.cut`), so the front of the
+    last one opens as the blade moves on."""
 
     def __init__(self, cut: dict, mesh):
         from .cut import Cutter, SweptBlade
         from .topology import TetTopology
+
+        from .cut import SweptBlade
 
         self.first = cut["frames"][0]
         self.sweep = SweptBlade(blade_path(cut))
@@ -465,7 +468,7 @@ class _Blade:
         n = self.topology.vertex_count
         self.topology.positions[:] = state.particle_q.numpy()[:n]
         self.topology.velocities[:] = state.particle_qd.numpy()[:n]
-        change = self.cutter.cut(self.sweep.surface_until(k), bounds=increment.bounds()).change
+        change = self.cutter.cut(increment, progressive=True).change
         return None if change.is_empty else change
 
 

@@ -55,6 +55,10 @@ ON_SURFACE_TOL = 1e-6
 MIN_SNAP = 1e-3
 
 
+#: Progressive cuts (increments of a blade's sweep) whose surfaces a face may lie near to open.
+PROGRESSIVE_WINDOW = 10
+
+
 class CutError(WcutError):
     """A cut cannot be made: unknown method, bad threshold, or a surface that misses the mesh."""
 
@@ -94,7 +98,7 @@ class _Sampling:
         edges = np.unique(np.sort(tets[:, TET_EDGES].reshape(-1, 2), axis=1), axis=0)
         x = topo.positions
         verts = np.unique(tets)
-        self.on = set(verts[surface.distance(x[verts]) <= tol].tolist())
+        self.on = set(verts[surface.distance(x[verts], tol) <= tol].tolist())
         t, normal = surface.crossings(x[edges[:, 0]], x[edges[:, 1]], tol)
         hit = np.isfinite(t)
         self.edges = {(int(a), int(b)): (float(s), n) for (a, b), s, n in zip(edges[hit], t[hit], normal[hit])}
@@ -131,6 +135,12 @@ class Cutter:
             mean_edge_length = topology.to_mesh().mean_edge_length()
         self.mean_edge_length = float(mean_edge_length)
         self._margin = 2.0 * self._longest_edge()
+        #: vertices this cutter inserted by 1-4 splits: one on the surface serves again as the
+        #: split vertex of its element's pieces when a later cut reaches them (thesis 5.1.1)
+        self.split_vertices: set[int] = set()
+        #: vertices on the cut of the progressive cuts so far
+        self.progressive_marks: set[int] = set()
+        self._recent: list[CutSurface] = []
 
     def _longest_edge(self) -> float:
         tets = self.topology.tets[self.topology.live_tets()]
@@ -138,12 +148,21 @@ class Cutter:
         return max(float(np.linalg.norm(x[tets[:, i]] - x[tets[:, j]], axis=1).max()) for i, j in TET_EDGES)
 
     # ------------------------------------------------------------------ public
-    def cut(self, surface: CutSurface, bounds=None) -> CutResult:
+    def cut(self, surface: CutSurface, bounds=None, *, progressive: bool = False) -> CutResult:
         """Insert ``surface`` (current configuration, m) and separate the mesh along it.
 
         Args:
-            bounds: optional (lower, upper) box (m) outside which nothing is cut (e.g. the
-                part a blade swept this frame); the surface's own bounds otherwise.
+            bounds: optional (lower, upper) box (m) outside which nothing is cut; the
+                surface's own bounds otherwise.
+            progressive: ``surface`` continues the cuts made before with ``progressive``
+                (the part a blade swept this frame). The vertices those cuts put on the cut
+                stay on it, so faces at the front of an earlier partial cut open once the
+                blade has passed, and an element split at the front keeps its split vertex,
+                which joins the cut (thesis 5.1.1: "the vertices are moved to the updated
+                barycenter"). Each increment is intersected in the current configuration,
+                where the material it meets is, and what was cut before is not cut again.
+                A face opens only near the surfaces of the last ``PROGRESSIVE_WINDOW``
+                progressive cuts (an element is crossed over several increments).
 
         Returns the :class:`TopologyChange` and the :class:`CutStats`. A surface that
         crosses no element gives an empty change.
@@ -151,6 +170,10 @@ class Cutter:
         topo = self.topology
         topo.begin_change()
         stats = CutStats()
+        self._progressive = progressive
+        if not progressive:
+            self.progressive_marks, self._recent = set(), []
+        self._recent = (self._recent + [surface])[-PROGRESSIVE_WINDOW:]
         try:
             slots = self._candidates(surface, bounds)
             if self.method == "delete":
@@ -230,13 +253,25 @@ class Cutter:
             marked |= self._insert_surface(surface, sampling, stats)
         self._disconnect(surface, marked, stats)
 
+    def _split_vertex_to_reuse(self, sampling: _Sampling) -> set[int]:
+        """Split vertices that serve again for the pieces of their element: those on the
+        surface, and in a progressive cut the front vertices the blade now reaches."""
+        if self._progressive:
+            return set(self.split_vertices)
+        return self.split_vertices & sampling.on
+
     def _insert_surface(self, surface: CutSurface, sampling: _Sampling, stats: CutStats) -> set[int]:
         """Steps 3-5: 1-4 splits, 2-3 flips / face splits, general flips / bisections.
         Returns the vertices created on the surface."""
         topo = self.topology
         marked: set[int] = set()
         cut_tets = [topo.tet(t) for t in sampling.cut_slots]
+        reused = self._split_vertex_to_reuse(sampling)
         for t, tet in zip(sampling.cut_slots, cut_tets):
+            again = reused.intersection(tet)
+            if again:
+                marked |= again  # a piece of an element split before: its split vertex serves again
+                continue
             weights, real = self._element_point(surface, sampling, tet)
             try:
                 p, _ = split_tet(topo, t, weights)
@@ -244,12 +279,15 @@ class Cutter:
                 stats.refused.append(str(exc))
                 continue
             stats.split_elements += 1
+            self.split_vertices.add(p)
             if real:
                 marked.add(p)
         faces = {}
         for tet in cut_tets:
             for local in TET_FACES.tolist():
                 tri = [tet[i] for i in local]
+                if reused.intersection(tri):
+                    continue  # its vertex on the surface already joins the polygon
                 if any(_edge(tri[i], tri[j]) in sampling.edges for i, j in ((0, 1), (1, 2), (0, 2))):
                     faces[face_key(*tri)] = None
         for key in faces:
@@ -347,6 +385,8 @@ class Cutter:
         """Unsew interior faces whose three vertices are on the cut and which lie on the
         surface, then duplicate their vertices once per fan (thesis 5.1.3)."""
         topo = self.topology
+        if self._progressive:
+            marked = self.progressive_marks = self.progressive_marks | marked
         faces = set()
         for v in marked:
             for t in topo.vertex_tets[v]:
@@ -361,11 +401,13 @@ class Cutter:
             if len(topo.face_tets.get(key, ())) != 2:
                 continue
             corners = x[list(key)]
-            size = np.linalg.norm(corners - corners.mean(axis=0), axis=1).max()
-            if surface.distance(corners.mean(axis=0)[None])[0] > 0.25 * size + self.tolerance:
+            reach = 0.25 * np.linalg.norm(corners - corners.mean(axis=0), axis=1).max() + self.tolerance
+            centre = corners.mean(axis=0)[None]
+            if min(s.distance(centre, reach)[0] for s in self._recent) > reach:
                 continue  # three vertices on the cut, but the face spans across it
-            unsew_face(topo, key)
             opened.append(key)
+        for key in opened:
+            unsew_face(topo, key)
         stats.unsewn_faces += len(opened)
         for v in sorted({v for key in opened for v in key}):
             stats.duplicated_vertices += len(duplicate_vertex(topo, v))

@@ -210,11 +210,11 @@ class TriangleSurface(CutSurface):
 
     Broad phase: segments outside the surface's box are skipped; the others are matched to
     triangles through a k-d tree of small pieces of the triangles (see :meth:`_pieces`), so
-    the cost follows the number of segments near the surface (about 0.05 s for 50k segments
+    the cost follows the number of segments near the surface (about 0.1 s for 50k segments
     and 2k triangles, 0.4 s when the triangles are slivers of a slowly swept blade).
 
     Its extension (:meth:`extension_crossings`) is, for each segment, the plane of the
-    triangle nearest to the segment's midpoint.
+    triangle nearest to the segment's midpoint (ties: the lowest triangle index).
     """
 
     def __init__(self, vertices, triangles):
@@ -337,7 +337,11 @@ class TriangleSurface(CutSurface):
         return t, normal
 
     def extension_crossings(self, a, b, tol: float) -> tuple[np.ndarray, np.ndarray]:
-        """Crossings with, per segment, the plane of the triangle nearest its midpoint."""
+        """Crossings with, per segment, the plane of the triangle nearest its midpoint.
+
+        Exact nearest triangle: cheap for segments near the surface (the partial cuts of thesis
+        5.1.1), costlier far from it (see :meth:`nearest`).
+        """
         a, b, tol = _segments(a, b, tol)
         _, j = self.nearest(0.5 * (a + b))
         return _plane_crossings(a, b, tol, self._v[j, 0], self.normals[j])

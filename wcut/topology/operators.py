@@ -35,7 +35,8 @@ def _check(topo: TetTopology, tets: list[list[int]], what: str, extra: dict | No
     ``extra`` maps a vertex not yet in the mesh (index -1, -2, ...) to its rest position."""
     rest = topo.vertex_data[:, REST]
     points = np.array([[extra[v] if v < 0 else rest[v] for v in tet] for tet in tets])
-    q = _qualities(points)
+    # The simulation sees float32 rest positions: the element must survive that rounding.
+    q = np.minimum(_qualities(points), _qualities(points.astype(np.float32).astype(np.float64)))
     worst = int(np.argmin(q))
     if not q[worst] > DEGENERATE_TOL:
         state = "inverted" if q[worst] < 0 else "flat"
@@ -188,20 +189,17 @@ def move_vertex(topo: TetTopology, v: int, parents, weights) -> None:
     """Move vertex v (snapping, thesis 5.1.3) to the barycentric combination of ``parents``.
 
     Refused when an element around v would invert or flatten, or, for a boundary vertex,
-    unless all its boundary faces lie in one plane and the target is in that plane (so the
-    vertex slides within a flat boundary and the volume is kept)."""
+    unless the target lies in the plane of every boundary face around v: the vertex slides
+    within a flat boundary or along a straight crease, so the boundary and the volume stay."""
     weights = _weights(weights, len(parents), f"moving vertex {v}")
     target = _point(topo, parents, weights)
     around = sorted(topo.vertex_tets[v])
     _check(topo, [_substitute(topo.tet(t), v, -1) for t in around], f"moving vertex {v}", {-1: target})
     normals = _boundary_normals(topo, v)
     if len(normals):
-        rest = topo.vertex_data[v, REST]
-        scale = np.linalg.norm(target - rest) + 1e-300
-        flat = np.abs(np.cross(normals, normals[0])).max() <= 1e-12
-        if not flat or abs(float(np.dot(normals[0], target - rest))) > 1e-12 * scale:
-            raise TopologyError(f"moving boundary vertex {v} would take it off its boundary"
-                                + ("" if flat else " (its boundary faces are not coplanar)"))
+        step = target - topo.vertex_data[v, REST]
+        if np.abs(normals @ step).max() > 1e-12 * (np.linalg.norm(step) + 1e-300):
+            raise TopologyError(f"moving boundary vertex {v} would take it off its boundary")
     topo.set_vertex(v, list(parents), weights)
 
 
