@@ -450,8 +450,6 @@ class _Blade:
         from .cut import Cutter, SweptBlade
         from .topology import TetTopology
 
-        from .cut import SweptBlade
-
         self.first = cut["frames"][0]
         self.sweep = SweptBlade(blade_path(cut))
         self.topology = TetTopology(mesh)

@@ -61,15 +61,6 @@ def signed_volume(p0, p1, p2, p3) -> float:
     return float(ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)) / 6.0
 
 
-def tet_quality(points: np.ndarray) -> float:
-    """Volume over cubed longest edge of a tetrahedron given as (4, 3) points (signed;
-    DEGENERATE_TOL is the smallest value a mesh accepts, a regular tetrahedron has 0.118)."""
-    volume = signed_volume(*points)
-    d = points[:, None, :] - points[None, :, :]
-    longest = np.sqrt((d * d).sum(axis=2).max())
-    return volume / longest**3
-
-
 class TetTopology:
     """A tetrahedral mesh with local adjacency that stays correct through every change.
 

@@ -17,7 +17,7 @@ import itertools
 import numpy as np
 
 from ..mesh import DEGENERATE_TOL, TET_FACES
-from .mesh import REST, TetTopology, TopologyError, face_key, signed_volume, tet_quality
+from .mesh import REST, TetTopology, TopologyError, face_key, signed_volume
 
 
 def _qualities(points: np.ndarray) -> np.ndarray:
