@@ -442,9 +442,14 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
 class _Blade:
     """The scene's blade: cuts the object where it swept since the last frame.
 
-    Each frame cuts, in the current configuration, along the surface swept since the last
-    frame; the cuts are progressive (see :meth:`wcut.cut.Cutter.cut`), so the front of the
-    last one opens as the blade moves on."""
+    The blade is a segment in the world; the material it cuts between two frames is what it
+    met on the way, which a moving body keeps changing. Each frame, points along the blade are
+    mapped from the current configuration to the rest configuration
+    (:meth:`~wcut.topology.TetTopology.rest_points`, thesis 3.2), and the cut is the strip
+    between the blade mapped last frame and the blade mapped now: consecutive strips share
+    their edges in the material, so the wound has no gaps however the body moves. The cuts
+    are progressive (see :meth:`wcut.cut.Cutter.cut`): the front of the last one opens as
+    the blade moves on."""
 
     def __init__(self, cut: dict, mesh):
         from .cut import Cutter, SweptBlade
@@ -454,19 +459,29 @@ class _Blade:
         self.sweep = SweptBlade(blade_path(cut))
         self.topology = TetTopology(mesh)
         self.cutter = Cutter(self.topology, method=cut["method"], epsilon=cut["epsilon"])
+        length = float(np.linalg.norm(self.sweep.blade[:, 1] - self.sweep.blade[:, 0], axis=1).max())
+        # a sample every half edge: the mapped blade follows the body's bending
+        self.sample_count = int(np.clip(np.ceil(2.0 * length / self.cutter.mean_edge_length), 2, 64)) + 1
+        self._mapped = None  # the blade of the last frame, in the rest configuration
 
     def cut(self, frame: int, state):
         """The TopologyChange of this frame's cut, or None when nothing changed."""
+        from .cut.surface import strip
+
         k = frame - self.first
-        if not 1 <= k < self.sweep.frame_count:
-            return None
-        increment = self.sweep.increment(k)
-        if increment is None:
+        if not 0 <= k < self.sweep.frame_count:
             return None
         n = self.topology.vertex_count
         self.topology.positions[:] = state.particle_q.numpy()[:n]
         self.topology.velocities[:] = state.particle_qd.numpy()[:n]
-        change = self.cutter.cut(increment, progressive=True).change
+        before = self._mapped
+        self._mapped = self.topology.rest_points(self.sweep.samples(k, self.sample_count))
+        if before is None:
+            return None
+        increment = strip(before, self._mapped)
+        if increment is None:
+            return None
+        change = self.cutter.cut(increment, progressive=True, rest=True).change
         return None if change.is_empty else change
 
 

@@ -40,7 +40,7 @@ from ..errors import WcutError
 from ..mesh import TET_FACES
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
                         flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, unsew_face)
-from .surface import CutSurface, Plane
+from .surface import CutSurface, Plane, TriangleSurface
 
 METHODS = ("paulus", "bielser", "snap", "delete")
 
@@ -54,9 +54,6 @@ ON_SURFACE_TOL = 1e-6
 #: to a vertex than this would only make needle elements (thesis 5.1.4).
 MIN_SNAP = 1e-3
 
-
-#: Progressive cuts (increments of a blade's sweep) whose surfaces a face may lie near to open.
-PROGRESSIVE_WINDOW = 10
 
 
 class CutError(WcutError):
@@ -93,10 +90,9 @@ class CutResult:
 class _Sampling:
     """Crossings of the surface with the edges of candidate elements (thesis 5.1.1)."""
 
-    def __init__(self, topo: TetTopology, surface: CutSurface, slots: np.ndarray, tol: float):
+    def __init__(self, topo: TetTopology, x: np.ndarray, surface: CutSurface, slots: np.ndarray, tol: float):
         tets = topo.tets[slots]
         edges = np.unique(np.sort(tets[:, TET_EDGES].reshape(-1, 2), axis=1), axis=0)
-        x = topo.positions
         verts = np.unique(tets)
         self.on = set(verts[surface.distance(x[verts], tol) <= tol].tolist())
         t, normal = surface.crossings(x[edges[:, 0]], x[edges[:, 1]], tol)
@@ -138,9 +134,9 @@ class Cutter:
         #: vertices this cutter inserted by 1-4 splits: one on the surface serves again as the
         #: split vertex of its element's pieces when a later cut reaches them (thesis 5.1.1)
         self.split_vertices: set[int] = set()
-        #: vertices on the cut of the progressive cuts so far
-        self.progressive_marks: set[int] = set()
-        self._recent: list[CutSurface] = []
+        #: the increments of the progressive cut so far (vertices, triangles)
+        self._swept: list[tuple[np.ndarray, np.ndarray]] = []
+        self._rest = False
 
     def _longest_edge(self) -> float:
         tets = self.topology.tets[self.topology.live_tets()]
@@ -148,21 +144,24 @@ class Cutter:
         return max(float(np.linalg.norm(x[tets[:, i]] - x[tets[:, j]], axis=1).max()) for i, j in TET_EDGES)
 
     # ------------------------------------------------------------------ public
-    def cut(self, surface: CutSurface, bounds=None, *, progressive: bool = False) -> CutResult:
+    def cut(self, surface: CutSurface, bounds=None, *, progressive: bool = False, rest: bool = False) -> CutResult:
         """Insert ``surface`` (current configuration, m) and separate the mesh along it.
 
         Args:
             bounds: optional (lower, upper) box (m) outside which nothing is cut; the
                 surface's own bounds otherwise.
-            progressive: ``surface`` continues the cuts made before with ``progressive``
-                (the part a blade swept this frame). The vertices those cuts put on the cut
-                stay on it, so faces at the front of an earlier partial cut open once the
-                blade has passed, and an element split at the front keeps its split vertex,
-                which joins the cut (thesis 5.1.1: "the vertices are moved to the updated
-                barycenter"). Each increment is intersected in the current configuration,
-                where the material it meets is, and what was cut before is not cut again.
-                A face opens only near the surfaces of the last ``PROGRESSIVE_WINDOW``
-                progressive cuts (an element is crossed over several increments).
+            progressive: ``surface`` (a :class:`TriangleSurface`) is the part a blade swept
+                since the last call with ``progressive``; the cut is along everything swept so
+                far. An element is cut once the blade has passed through it: elements that the
+                boundary of the swept surface (the blade's current position, the traces of its
+                ends) passes through wait for a later increment. So the wound lags the blade by
+                at most one element, and no element is split twice at a moving front (thesis
+                5.1.1 moves a front split vertex instead; that vertex leaves the cut when the
+                body deforms between increments, and the faces around it never open).
+            rest: ``surface`` (and ``bounds``) are in the rest configuration: what a blade swept
+                through a moving body, mapped there (:meth:`TetTopology.rest_points`), so
+                that consecutive increments join in the material whatever the body did
+                in between.
 
         Returns the :class:`TopologyChange` and the :class:`CutStats`. A surface that
         crosses no element gives an empty change.
@@ -170,12 +169,13 @@ class Cutter:
         topo = self.topology
         topo.begin_change()
         stats = CutStats()
-        self._progressive = progressive
-        if not progressive:
-            self.progressive_marks, self._recent = set(), []
-        self._recent = (self._recent + [surface])[-PROGRESSIVE_WINDOW:]
+        self._rest = rest
         try:
-            slots = self._candidates(surface, bounds)
+            if progressive:
+                surface, slots = self._progressive_surface(surface, bounds)
+            else:
+                self._swept = []
+                slots = self._candidates(surface, bounds)
             if self.method == "delete":
                 self._delete(surface, slots, stats)
             elif self.method == "bielser":
@@ -189,6 +189,10 @@ class Cutter:
         return CutResult(change, stats)
 
     # ---------------------------------------------------------------- helpers
+    def coordinates(self) -> np.ndarray:
+        """(N, 3) vertex positions (m) in the configuration of the cut being made (a view)."""
+        return self.topology.rest_positions if self._rest else self.topology.positions
+
     @property
     def tolerance(self) -> float:
         """Distance (m) within which a vertex is on the surface."""
@@ -199,7 +203,7 @@ class Cutter:
         or inside its box grown by twice the longest edge): every element the surface
         crosses, found with a few vectorised passes so the cut's cost follows the surface."""
         topo = self.topology
-        x = topo.positions
+        x = self.coordinates()
         if isinstance(surface, Plane) and bounds is None:
             near = np.abs(surface.signed_distance(x)) <= self._margin
         else:
@@ -210,13 +214,58 @@ class Cutter:
         slots = topo.live_tets()
         return slots[near[topo.tets[slots]].any(axis=1)]
 
+    def _progressive_surface(self, increment: CutSurface, bounds) -> tuple[CutSurface, np.ndarray]:
+        """Everything swept so far, welded into one surface, and the elements near
+        ``increment`` that the blade has passed through completely."""
+        if not isinstance(increment, TriangleSurface):
+            raise CutError(f"a progressive cut takes a TriangleSurface increment, got {type(increment).__name__}")
+        slots = self._candidates(increment, bounds)
+        self._swept.append((increment.vertices, increment.triangles))
+        offsets = np.cumsum([0] + [len(v) for v, _ in self._swept])
+        vertices, inverse = np.unique(np.concatenate([v for v, _ in self._swept]), axis=0, return_inverse=True)
+        triangles = inverse.ravel()[np.concatenate([t + o for (_, t), o in zip(self._swept, offsets)])]
+        swept = TriangleSurface(vertices, triangles)
+        return swept, slots[~self._crossed_by(slots, vertices[_boundary_edges(triangles)])]
+
+    def _crossed_by(self, slots: np.ndarray, segments: np.ndarray) -> np.ndarray:
+        """(M,) whether any of ``segments`` (B, 2, 3) (m) meets element ``slots[i]``, up to the
+        on-surface tolerance (Cyrus-Beck clipping in barycentric coordinates)."""
+        crossed = np.zeros(len(slots), dtype=bool)
+        if not len(slots) or not len(segments):
+            return crossed
+        corners = self.coordinates()[self.topology.tets[slots]]  # (M, 4, 3)
+        lower, upper = corners.min(axis=1), corners.max(axis=1)
+        seg_lo, seg_hi = segments.min(axis=1), segments.max(axis=1)
+        pairs = np.all((seg_lo[None] <= upper[:, None] + self.tolerance)
+                       & (seg_hi[None] >= lower[:, None] - self.tolerance), axis=2)
+        m, b = np.nonzero(pairs)
+        if not len(m):
+            return crossed
+        inverse = np.linalg.inv(np.transpose(corners[:, 1:] - corners[:, :1], (0, 2, 1)))
+
+        def bary(points, rows):
+            local = np.einsum("kij,kj->ki", inverse[rows], points - corners[rows, 0])
+            return np.concatenate([1.0 - local.sum(axis=1, keepdims=True), local], axis=1)
+
+        start, end = bary(segments[b, 0], m), bary(segments[b, 1], m)
+        slack = self.tolerance / np.linalg.norm(upper - lower, axis=1)[m, None]  # relative
+        rate = end - start
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound = -(start + slack) / rate  # where each coordinate reaches -slack
+        enter = np.where(rate > 0, bound, -np.inf).max(axis=1)
+        leave = np.where(rate < 0, bound, np.inf).min(axis=1)
+        blocked = ((rate == 0) & (start < -slack)).any(axis=1)
+        meets = ~blocked & (np.maximum(enter, 0.0) <= np.minimum(leave, 1.0))
+        crossed[m[meets]] = True
+        return crossed
+
     def sample(self, surface: CutSurface, slots) -> _Sampling:
-        return _Sampling(self.topology, surface, np.asarray(slots, dtype=np.int64), self.tolerance)
+        return _Sampling(self.topology, self.coordinates(), surface, np.asarray(slots, dtype=np.int64), self.tolerance)
 
     def _snap(self, sampling: _Sampling, threshold: float, stats: CutStats) -> set[int]:
         """Snap the nearest vertex of each crossed edge onto its crossing when its distance to
         the plane (crossing, normal) is below ``threshold`` (m), nearest first (thesis 5.1.3)."""
-        x = self.topology.positions
+        x = self.coordinates()
         moves = []
         for (a, b), (t, n) in sampling.edges.items():
             h = (1.0 - t) * x[a] + t * x[b]
@@ -253,20 +302,13 @@ class Cutter:
             marked |= self._insert_surface(surface, sampling, stats)
         self._disconnect(surface, marked, stats)
 
-    def _split_vertex_to_reuse(self, sampling: _Sampling) -> set[int]:
-        """Split vertices that serve again for the pieces of their element: those on the
-        surface, and in a progressive cut the front vertices the blade now reaches."""
-        if self._progressive:
-            return set(self.split_vertices)
-        return self.split_vertices & sampling.on
-
     def _insert_surface(self, surface: CutSurface, sampling: _Sampling, stats: CutStats) -> set[int]:
         """Steps 3-5: 1-4 splits, 2-3 flips / face splits, general flips / bisections.
         Returns the vertices created on the surface."""
         topo = self.topology
         marked: set[int] = set()
         cut_tets = [topo.tet(t) for t in sampling.cut_slots]
-        reused = self._split_vertex_to_reuse(sampling)
+        reused = self.split_vertices & sampling.on
         for t, tet in zip(sampling.cut_slots, cut_tets):
             again = reused.intersection(tet)
             if again:
@@ -334,9 +376,9 @@ class Cutter:
         and whether it lies on the cut: the barycentre of the crossings and on-vertices, or,
         with fewer than three of them, of those of the surface's extension."""
         points = self._crossing_weights(tet, sampling.edges, sampling.on)
+        x = self.coordinates()
         if len(points) >= 3:
-            return np.mean(points, axis=0), True
-        x = self.topology.positions
+            return self._onto_surface(surface, x[tet], np.mean(points, axis=0)), True
         pairs = [(tet[i], tet[j]) for i, j in TET_EDGES]
         a = x[[p[0] for p in pairs]]
         b = x[[p[1] for p in pairs]]
@@ -348,6 +390,38 @@ class Cutter:
         if len(points) < 3:  # degenerate: pull off the element's boundary
             weights = 0.75 * weights + 0.0625
         return weights, False
+
+    def _onto_surface(self, surface: CutSurface, corners: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Barycentric weights over ``corners`` (4 of an element or 3 of a face, m) of the
+        point ``weights @ corners`` moved onto a curved S within the element or face.
+
+        The barycentre of crossings is on S only where S is flat; a vertex placed off S is not
+        on the cut for the next cut, which would split its elements again. So the point is
+        projected onto S's nearest plane (within the face's plane for a face) a few times.
+        The weights come back unchanged where S is nearly parallel to the face or the move
+        would halve the point's smallest weight (the operators' quality check would refuse
+        flatter elements)."""
+        p = weights @ corners
+        span = None
+        if len(corners) == 3:
+            span = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+            span /= np.linalg.norm(span)
+        for _ in range(4):
+            origin, normal = (a[0] for a in surface.tangent_planes(p[None]))
+            gap = float(normal @ (p - origin))
+            if abs(gap) <= self.tolerance:
+                break
+            step = normal if span is None else normal - (normal @ span) * span
+            along = float(normal @ step)
+            if along < 0.1:
+                return weights
+            p = p - gap / along * step
+        else:
+            return weights
+        edges = (corners[1:] - corners[0]).T
+        local = np.linalg.lstsq(edges, p - corners[0], rcond=None)[0]
+        moved = np.concatenate([[1.0 - local.sum()], local])
+        return moved if moved.min() >= 0.5 * weights.min() else weights
 
     @staticmethod
     def _crossing_weights(vertices: list[int], edges: dict, on: set[int]) -> list[np.ndarray]:
@@ -375,7 +449,7 @@ class Cutter:
         whether it is on the cut: the barycentre of its crossings and on-vertices."""
         points = self._crossing_weights(list(key), sampling.edges, sampling.on)
         if len(points) >= 2:
-            return np.mean(points, axis=0), True
+            return self._onto_surface(surface, self.coordinates()[list(key)], np.mean(points, axis=0)), True
         if not points:
             return None
         return 0.5 * points[0] + 0.5 / 3.0, False
@@ -385,8 +459,6 @@ class Cutter:
         """Unsew interior faces whose three vertices are on the cut and which lie on the
         surface, then duplicate their vertices once per fan (thesis 5.1.3)."""
         topo = self.topology
-        if self._progressive:
-            marked = self.progressive_marks = self.progressive_marks | marked
         faces = set()
         for v in marked:
             for t in topo.vertex_tets[v]:
@@ -395,7 +467,7 @@ class Cutter:
                     tri = [tet[i] for i in local]
                     if all(u in marked for u in tri):
                         faces.add(face_key(*tri))
-        x = topo.positions
+        x = self.coordinates()
         opened = []
         for key in sorted(faces):
             if len(topo.face_tets.get(key, ())) != 2:
@@ -403,7 +475,7 @@ class Cutter:
             corners = x[list(key)]
             reach = 0.25 * np.linalg.norm(corners - corners.mean(axis=0), axis=1).max() + self.tolerance
             centre = corners.mean(axis=0)[None]
-            if min(s.distance(centre, reach)[0] for s in self._recent) > reach:
+            if surface.distance(centre, reach)[0] > reach:
                 continue  # three vertices on the cut, but the face spans across it
             opened.append(key)
         for key in opened:
@@ -427,3 +499,10 @@ class Cutter:
         topo.replace_tets(sorted(doomed), [])
         stats.deleted_elements = len(doomed)
         topo.drop_unused_vertices()
+
+
+def _boundary_edges(triangles: np.ndarray) -> np.ndarray:
+    """(B, 2) vertex pairs of the edges of a triangulated surface used by one triangle."""
+    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    unique, count = np.unique(edges, axis=0, return_counts=True)
+    return unique[count == 1]

@@ -164,6 +164,12 @@ class CutSurface(ABC):
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounding box ``(lower (3,), upper (3,))`` (m) of the bounded surface."""
 
+    @abstractmethod
+    def tangent_planes(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """The plane of S nearest to each point (M, 3) (m): a point on it (M, 3) (m) and its
+        unit normal (M, 3). Projecting onto it, repeatedly, puts a point on S (the cutter
+        places the vertices it inserts on a curved S this way)."""
+
 
 class Plane(CutSurface):
     """The infinite plane through ``point`` (m) with normal ``normal`` (normalised here).
@@ -196,6 +202,10 @@ class Plane(CutSurface):
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return np.full(3, -np.inf), np.full(3, np.inf)
+
+    def tangent_planes(self, points) -> tuple[np.ndarray, np.ndarray]:
+        count = len(_array(points, (-1, 3), "points"))
+        return np.tile(self.point, (count, 1)), np.tile(self.normal, (count, 1))
 
 
 class TriangleSurface(CutSurface):
@@ -372,6 +382,10 @@ class TriangleSurface(CutSurface):
 
     def distance(self, points, limit: float = np.inf) -> np.ndarray:
         return self.nearest(points, limit)[0]
+
+    def tangent_planes(self, points) -> tuple[np.ndarray, np.ndarray]:
+        _, j = self.nearest(points)
+        return self._v[j, 0], self.normals[j]
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> TriangleSurface:
@@ -551,10 +565,14 @@ class SweptBlade:
     def _sweep(blade: np.ndarray) -> TriangleSurface | None:
         vertices = blade.reshape(-1, 3)  # blade[k, e] is vertex 2k + e
         k = 2 * np.arange(len(blade) - 1)
-        q0, q1, q2, q3 = k, k + 1, k + 3, k + 2
-        tris = np.stack([np.stack([q0, q1, q2], 1), np.stack([q0, q2, q3], 1)], axis=1).reshape(-1, 3)
-        tris = tris[~_degenerate(*(vertices[tris[:, c]] for c in range(3)))]
-        return TriangleSurface(vertices, tris) if len(tris) else None
+        return _quads(vertices, k, k + 1, k + 3, k + 2)
+
+    def samples(self, frame: int, count: int) -> np.ndarray:
+        """(count, 3) points (m) evenly spaced along the blade at ``frame`` (0..F-1), ends included."""
+        if not 0 <= frame < self.frame_count:
+            raise SurfaceError(f"blade frame {frame} out of range 0..{self.frame_count - 1}")
+        s = np.linspace(0.0, 1.0, max(int(count), 2))[:, None]
+        return (1.0 - s) * self.blade[frame, 0] + s * self.blade[frame, 1]
 
     def increment(self, frame: int) -> TriangleSurface | None:
         """The quad swept between ``frame - 1`` and ``frame``; None if the blade did not move."""
@@ -565,3 +583,20 @@ class SweptBlade:
         """Everything swept from frame 0 to ``frame`` (>= 1); None if the blade never moved."""
         frame = self._check(frame)
         return self._sweep(self.blade[:frame + 1])
+
+
+def strip(before, after) -> TriangleSurface | None:
+    """The surface swept by a polyline moving from ``before`` to ``after`` ((n, 3) each, m):
+    quads (before[i], before[i+1], after[i+1], after[i]) split in two triangles, oriented as
+    in :class:`SweptBlade`; zero-area triangles left out. None if nothing has area."""
+    before = _array(before, (-1, 3), "polyline before")
+    after = _array(after, (len(before), 3), "polyline after")
+    n = len(before)
+    i = np.arange(n - 1)
+    return _quads(np.concatenate([before, after]), i, i + 1, n + i + 1, n + i)
+
+
+def _quads(vertices, q0, q1, q2, q3) -> TriangleSurface | None:
+    tris = np.stack([np.stack([q0, q1, q2], 1), np.stack([q0, q2, q3], 1)], axis=1).reshape(-1, 3)
+    tris = tris[~_degenerate(*(vertices[tris[:, c]] for c in range(3)))]
+    return TriangleSurface(vertices, tris) if len(tris) else None

@@ -221,6 +221,35 @@ class TetTopology:
                     return True
         return False
 
+    def rest_points(self, points) -> np.ndarray:
+        """Map points of the current configuration (m) to the rest configuration (m).
+
+        A point inside an element keeps its barycentric coordinates there (for linear elements
+        the rest-to-current map is affine per element, thesis 3.2); a point outside the mesh is
+        carried by the affine map of the element whose centroid is nearest (a blade's ends stick
+        out of the body). Only elements near the points' bounding box are searched, so the cost
+        follows the points, not the mesh.
+        """
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        slots = self.live_tets()
+        x, rest = self.positions, self.rest_positions
+        corners = x[self.tets[slots]]  # (M, 4, 3)
+        lower, upper = corners.min(axis=1), corners.max(axis=1)
+        reach = float(np.max(upper - lower))
+        near = np.all((upper >= p.min(axis=0) - reach) & (lower <= p.max(axis=0) + reach), axis=1)
+        if not near.any():  # every point far outside: search everything
+            near[:] = True
+        slots, corners = slots[near], corners[near]
+        edges = np.transpose(corners[:, 1:] - corners[:, :1], (0, 2, 1))  # columns x1-x0, x2-x0, x3-x0
+        inverse = np.linalg.inv(edges)
+        local = np.einsum("mij,pmj->pmi", inverse, p[:, None, :] - corners[None, :, 0])  # (P, M, 3)
+        bary = np.concatenate([1.0 - local.sum(axis=2, keepdims=True), local], axis=2)
+        inside = bary.min(axis=2)
+        centroid_gap = np.linalg.norm(p[:, None, :] - corners.mean(axis=1)[None], axis=2)
+        best = np.where(inside.max(axis=1) >= -1e-12, inside.argmax(axis=1), centroid_gap.argmin(axis=1))
+        weights = bary[np.arange(len(p)), best]  # (P, 4)
+        return np.einsum("pk,pkj->pj", weights, rest[self.tets[slots[best]]])
+
     def to_mesh(self, name: str | None = None) -> TetMesh:
         """The live elements as a :class:`TetMesh` (elements in slot order, vertices as
         numbered here), without re-validating: the operators keep the mesh valid."""
