@@ -56,18 +56,19 @@ def test_one_row_per_method_epsilon_step(quick_run):
 
 
 def test_nodes_grow_and_beam_separates(quick_run):
-    """Known gap (issue 3 stays open): a progressive paulus cut without snapping (epsilon 0)
-    can leave its last front unopened, so separation is asserted with snapping only, and
-    for bielser at both."""
+    """Every method and epsilon, paulus without snapping included, leaves the beam in two
+    pieces once the blade is through (an element is cut once the blade has passed it, so the
+    last front opens), and in one piece before."""
     _, _, rows = quick_run
     for method in ("paulus", "bielser"):
         for epsilon in (0.0, 0.2):
-            nodes = [int(r["nodes"]) for r in _case(rows, method, epsilon)]
+            case = _case(rows, method, epsilon)
+            nodes = [int(r["nodes"]) for r in case]
             assert all(b >= a for a, b in zip(nodes, nodes[1:])), (method, epsilon, nodes)
             assert nodes[-1] > nodes[0]
-    assert int(_case(rows, "paulus", 0.2)[-1]["components"]) == 2
-    for epsilon in (0.0, 0.2):
-        assert int(_case(rows, "bielser", epsilon)[-1]["components"]) == 2
+            pieces = [int(r["components"]) for r in case]
+            assert pieces[-1] == 2, (method, epsilon, pieces)
+            assert pieces[:7] == [1] * 7, (method, epsilon, pieces)  # steps 0-6: the blade is in the beam
 
 
 def test_condition_numbers_finite_and_above_one(quick_run):

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wcut.cut.surface import Plane, Polygon, SurfaceError, SweptBlade, TriangleSurface
+from wcut.cut.surface import Plane, Polygon, SurfaceError, SweptBlade, TriangleSurface, strip
 from wcut.errors import WcutError
 
 TOL = 1e-9
@@ -443,6 +443,114 @@ def test_curved_sweep_of_slivers_matches_brute_force():
     d *= 1e-6 / np.linalg.norm(d, axis=1)[:, None]
     t, _ = surface.crossings(p - d, p + d, 0.0)
     np.testing.assert_allclose(t, 0.5, atol=1e-6)
+
+
+def test_swept_blade_samples_are_even_and_include_the_ends():
+    blade = SweptBlade([[[0, 0, 0], [0, 0, 0.1]], [[0.01, 0.02, 0], [0.01, 0.05, 0.08]]])
+    for frame in (0, 1):
+        points = blade.samples(frame, 5)
+        assert points.shape == (5, 3)
+        np.testing.assert_array_equal(points[[0, -1]], blade.blade[frame])
+        steps = np.diff(points, axis=0)
+        np.testing.assert_allclose(steps, np.broadcast_to(steps[0], steps.shape), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(4 * steps[0], blade.blade[frame, 1] - blade.blade[frame, 0], atol=1e-15)
+    np.testing.assert_array_equal(blade.samples(1, 2), blade.blade[1])
+    for frame in (-1, 2):
+        with pytest.raises(SurfaceError, match="out of range"):
+            blade.samples(frame, 5)
+
+
+def test_strip_of_two_point_polylines_is_the_blade_increment():
+    blade = moving_blade(3)
+    for k in (1, 2):
+        a, b = strip(blade.blade[k - 1], blade.blade[k]), blade.increment(k)
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        np.testing.assert_array_equal(a.triangles, b.triangles)
+        np.testing.assert_array_equal(a.normals, b.normals)
+
+
+def test_strip_of_a_moving_polyline():
+    """A bent polyline (3 segments) translated along x: two triangles per segment, area
+    length x distance, normal = polyline direction x motion (as a swept blade)."""
+    before = np.array([[0, 0, 0], [0, 0.03, 0.01], [0, 0.05, 0.01], [0, 0.08, 0.0]])
+    after = before + [0.02, 0, 0]
+    surface = strip(before, after)
+    assert len(surface) == 6
+    length = np.linalg.norm(np.diff(before, axis=0), axis=1).sum()
+    assert triangle_areas(surface).sum() == pytest.approx(0.02 * length, rel=1e-12)
+    tangent = np.repeat(np.diff(before, axis=0), 2, axis=0)
+    expected = np.cross(tangent, [1.0, 0, 0])
+    np.testing.assert_allclose(surface.normals, expected / np.linalg.norm(expected, axis=1)[:, None], atol=1e-12)
+    # a segment through the middle of the second quad crosses it half way
+    t, n = surface.crossings([[0.01, 0.04, -0.1]], [[0.01, 0.04, 0.1]], TOL)
+    assert t[0] == pytest.approx(0.5 + 0.01 / 0.2) and n[0] == pytest.approx([0, 0, -1])  # y x x = -z
+
+
+def test_strip_drops_zero_area_triangles_and_returns_none_without_area():
+    before = np.array([[0, 0, 0], [0, 0.1, 0], [0, 0.2, 0]], float)
+    after = before.copy()
+    after[2] += [0.05, 0, 0]  # only the last point moves: the first quad has no area
+    surface = strip(before, after)
+    assert len(surface) == 1  # of the second quad, only the triangle through the moved point
+    assert triangle_areas(surface).sum() == pytest.approx(0.5 * 0.1 * 0.05)
+    assert strip(before, before) is None
+    assert strip(before[:1], after[:1]) is None  # a single point sweeps no area
+    along = before + [0, 0.3, 0]  # moving along its own line: every triangle is flat
+    assert strip(before, along) is None
+
+
+@pytest.mark.parametrize("before, after, words", [
+    (np.zeros((3, 3)), np.zeros((4, 3)), "shape"),
+    (np.zeros((3, 2)), np.zeros((3, 2)), "shape"),
+    (np.zeros(3), np.zeros(3), "shape"),
+    ([[0, 0, 0], [0, 1, np.nan]], [[1, 0, 0], [1, 1, 0]], "NaN"),
+    ([["a", 0, 0], [0, 1, 0]], [[1, 0, 0], [1, 1, 0]], "not numeric"),
+])
+def test_strip_bad_input_raises_surface_error(before, after, words):
+    with pytest.raises(SurfaceError, match=words):
+        strip(before, after)
+
+
+def test_plane_tangent_planes_are_the_plane():
+    plane = Plane([0.1, 0.2, 0.3], [0.0, 3.0, 4.0])
+    points = np.random.default_rng(4).uniform(-2, 2, (7, 3))
+    origin, normal = plane.tangent_planes(points)
+    assert origin.shape == normal.shape == (7, 3)
+    np.testing.assert_allclose(plane.signed_distance(origin), 0.0, atol=1e-15)
+    np.testing.assert_allclose(normal, np.broadcast_to([0, 0.6, 0.8], (7, 3)), atol=1e-15)
+    with pytest.raises(SurfaceError, match="shape"):
+        plane.tangent_planes(np.zeros((2, 2)))
+
+
+def test_triangle_surface_tangent_planes_are_the_nearest_triangles_planes():
+    grid = bumpy_grid(5, seed=3)
+    corners = grid.vertices[grid.triangles]
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-0.3, 1.3, (60, 3))
+    origin, normal = grid.tangent_planes(points)
+    np.testing.assert_allclose(np.linalg.norm(normal, axis=1), 1.0, atol=1e-12)
+    for p, o, n in zip(points, origin, normal):
+        gaps = [ref_point_triangle(p, *tri) for tri in corners]
+        nearest = np.flatnonzero(np.isclose(gaps, min(gaps), rtol=0, atol=1e-12))
+        # the plane returned is that of a nearest triangle (ties allowed): its normal, through it
+        assert any(np.allclose(n, grid.normals[j], atol=1e-12) and abs((corners[j] - o) @ n).max() < 1e-12
+                   for j in nearest), (p, nearest)
+
+
+def test_projecting_onto_the_tangent_plane_puts_a_point_on_the_surface():
+    """Points just off the inside of a triangle: one projection onto the tangent plane lands on S."""
+    grid = bumpy_grid(5, seed=6)
+    rng = np.random.default_rng(7)
+    j = rng.integers(0, len(grid), 100)
+    weights = 0.2 + 0.4 * rng.dirichlet([1, 1, 1], 100)
+    on = np.einsum("ik,ikj->ij", weights, grid.vertices[grid.triangles[j]])
+    offset = 1e-4 * rng.choice([-1.0, 1.0], 100)
+    points = on + offset[:, None] * grid.normals[j]
+    origin, normal = grid.tangent_planes(points)
+    np.testing.assert_allclose(normal, grid.normals[j], atol=1e-12)
+    projected = points - np.einsum("ij,ij->i", points - origin, normal)[:, None] * normal
+    np.testing.assert_allclose(projected, on, rtol=0, atol=1e-12)
+    assert grid.distance(projected).max() <= 1e-12
 
 
 # ---------------------------------------------------------------- properties

@@ -764,3 +764,64 @@ def test_splits_near_element_boundaries_succeed_or_refuse_cleanly(data):
         assert (topo.vertex_count, topo.tet_count) == (n0 + 1, t0 + grow)
     else:
         assert (topo.vertex_count, topo.tet_count) == (n0, t0)
+
+
+# ---------------------------------------------------------------------------------------------
+# rest_points: current configuration -> rest configuration
+
+
+def _bend(rest: np.ndarray) -> np.ndarray:
+    """A nonlinear deformation: x shifted by z^2 (a shear that grows with height), z sagging with x^2."""
+    x, y, z = rest.T
+    return np.c_[x + 0.8 * z**2, y + 0.1 * x * z, z - 0.5 * x**2]
+
+
+def _points_in_elements(topo: TetTopology, count: int, seed: int = 0, floor: float = 0.05):
+    """``count`` random (slot, weights) pairs: weights over the element's corners, each >= ``floor``."""
+    rng = np.random.default_rng(seed)
+    slots = rng.choice(topo.live_tets(), count)
+    weights = floor + (1.0 - 4 * floor) * rng.dirichlet(np.ones(4), count)
+    return slots, weights
+
+
+@pytest.mark.parametrize("name", BEAMS)
+def test_rest_points_is_the_identity_at_rest(name):
+    topo = TetTopology(MESHES[name]())
+    slots, weights = _points_in_elements(topo, 50)
+    inside = np.einsum("pk,pkj->pj", weights, topo.rest_positions[topo.tets[slots]])
+    outside = np.random.default_rng(1).uniform(-0.5, 1.5, (50, 3)) * BEAM_SIZE
+    for points in (inside, outside, topo.rest_positions):
+        np.testing.assert_allclose(topo.rest_points(points), points, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", BEAMS)
+def test_rest_points_inverts_an_affine_deformation_inside_and_outside(name):
+    """positions = A rest + b: every element has the same affine map, so rest_points(A X + b) = X
+    wherever X is, in an element or outside the mesh (carried by a nearby element's map)."""
+    topo = make_topology(MESHES[name]())
+    slots, weights = _points_in_elements(topo, 60)
+    inside = np.einsum("pk,pkj->pj", weights, topo.rest_positions[topo.tets[slots]])
+    rng = np.random.default_rng(2)
+    near = rng.uniform(-0.3, 1.3, (60, 3)) * BEAM_SIZE  # partly outside the box, some far outside
+    near = near[np.any((near < 0) | (near > BEAM_SIZE), axis=1)]
+    far = rng.uniform(5.0, 6.0, (10, 3))  # all far from the mesh: every element is searched
+    assert len(near) > 20
+    for X in (inside, near, far, np.concatenate([inside, far])):
+        np.testing.assert_allclose(topo.rest_points(X @ POS_MAP.T + POS_SHIFT), X, rtol=0, atol=1e-9)
+    assert topo.rest_points(inside[0] @ POS_MAP.T + POS_SHIFT).shape == (1, 3)  # one point (3,) -> (1, 3)
+
+
+@pytest.mark.parametrize("name", BEAMS)
+def test_rest_points_keeps_barycentric_coordinates_under_a_nonlinear_deformation(name):
+    """Under a bending the map is affine per element only: a point at a vertex goes to the rest
+    vertex, a point inside an element to the same barycentric combination of its rest corners."""
+    mesh = MESHES[name]()
+    topo = TetTopology(mesh, positions=_bend(mesh.vertices))
+    np.testing.assert_allclose(topo.rest_points(topo.positions), topo.rest_positions, rtol=0, atol=1e-12)
+    slots, weights = _points_in_elements(topo, 80, seed=3)
+    corners = topo.tets[slots]
+    current = np.einsum("pk,pkj->pj", weights, topo.positions[corners])
+    expected = np.einsum("pk,pkj->pj", weights, topo.rest_positions[corners])
+    np.testing.assert_allclose(topo.rest_points(current), expected, rtol=0, atol=1e-12)
+    # and not the exact inverse of the bending: the elements are linear
+    assert np.abs(expected - current).max() > 0.05

@@ -35,7 +35,7 @@ def meshes_at(stage, frame):
         yield points, triangles, None if values is None else np.asarray(values, dtype=float)
 
 
-def render(path: str, output: str, frames: list[float] | None) -> None:
+def render(path: str, output: str, frames: list[float] | None, view: tuple[float, float] = (15.0, -60.0)) -> None:
     stage = Usd.Stage.Open(path)
     start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
     frames = frames or [start, 0.5 * (start + end), end]
@@ -60,7 +60,7 @@ def render(path: str, output: str, frames: list[float] | None) -> None:
         for axis, set_lim in enumerate((ax.set_xlim, ax.set_ylim, ax.set_zlim)):
             set_lim(center[axis] - radius, center[axis] + radius)
         ax.set_box_aspect((1, 1, 1))
-        ax.view_init(elev=15, azim=-60)
+        ax.view_init(elev=view[0], azim=view[1])
         ax.set_title(f"frame {frame}  (t = {frame / fps:.2f} s)")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
@@ -76,8 +76,10 @@ def main(argv=None) -> int:
     parser.add_argument("usd")
     parser.add_argument("-o", "--output", required=True, help="PNG file")
     parser.add_argument("--frames", type=float, nargs="+", help="time codes (default: first, middle, last)")
+    parser.add_argument("--view", type=float, nargs=2, default=(15.0, -60.0), metavar=("ELEV", "AZIM"),
+                        help="camera elevation and azimuth in degrees (default 15 -60)")
     args = parser.parse_args(argv)
-    render(args.usd, args.output, args.frames)
+    render(args.usd, args.output, args.frames, tuple(args.view))
     print(f"wrote {args.output}")
     return 0
 

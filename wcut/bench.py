@@ -28,6 +28,12 @@ SCENES = (("beam_10x10x40", (10, 10, 40), (0.1, 0.1, 0.4)), ("beam_16x16x76", (1
 CG_ITERATIONS = 20
 DT = 0.01
 
+#: Cut-event meshes: name, hexahedra along x, y, z, size (m). Thin beams of 1 cm cells whose
+#: 4 x 5 cross-section a plane x = const crosses in 100 elements, whatever the length.
+CUT_SCENES = (("cut_20k", (200, 4, 5), (2.0, 0.04, 0.05)), ("cut_100k", (1000, 4, 5), (10.0, 0.04, 0.05)))
+#: Where the plane crosses its cell, as a fraction of the cell (not through a node layer).
+CUT_OFFSET = 0.37
+
 
 def _median_seconds(fn, repeats: int, warmup: int = 1) -> float:
     for _ in range(warmup):
@@ -141,7 +147,75 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
     }
 
 
-def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True, scenes=SCENES) -> dict:
+def _cut_setup(cells, size):
+    """Mesh, model, state and the plane of a cut-event benchmark: a beam clamped at x = 0 and
+    the plane x = middle cell + CUT_OFFSET, slightly tilted."""
+    from .cut import Plane
+
+    mesh = beam(*cells, size=size)
+    fixed = mesh.vertices_in_box((-1.0, -1.0, -1.0), (1e-9, 1.0, 1.0))
+    model = Model(mesh, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3, fixed=fixed)
+    cell = size[0] / cells[0]
+    plane = Plane([(cells[0] // 2 + CUT_OFFSET) * cell, 0.0, 0.0], [1.0, 0.02, 0.01])
+    return mesh, model, model.state(), plane
+
+
+def bench_cut_event(name: str, cells, size, *, repeats: int = 7) -> dict:
+    """Time a cut event: ``Cutter.cut`` (paulus, epsilon 0.1) of a plane crossing about 100
+    elements, ``TetTopology.to_mesh`` and ``Model.rebuild`` (new flat arrays, state carried
+    over). Each repetition cuts a fresh copy of the mesh; building it is not timed."""
+    from .cut import Cutter
+    from .topology import TetTopology
+
+    mesh, model, state, plane = _cut_setup(cells, size)
+    cut_s, rebuild_s, event_s = [], [], []
+    for _ in range(repeats + 1):  # the first one warms up
+        topology = TetTopology(mesh, state.particle_q.numpy(), state.particle_qd.numpy())
+        cutter = Cutter(topology, method="paulus", epsilon=0.1)
+        start = time.perf_counter()
+        result = cutter.cut(plane)
+        middle = time.perf_counter()
+        model.rebuild(topology.to_mesh(), result.change, state)
+        wp.synchronize_device(model.device)
+        end = time.perf_counter()
+        cut_s.append(middle - start)
+        rebuild_s.append(end - middle)
+        event_s.append(end - start)
+    return {
+        "name": name,
+        "tets": mesh.tet_count,
+        "nodes": mesh.vertex_count,
+        "cut_elements": result.stats.cut_elements,
+        "event_ms": round(statistics.median(event_s[1:]) * 1e3, 2),
+        "cut_ms": round(statistics.median(cut_s[1:]) * 1e3, 2),
+        "rebuild_ms": round(statistics.median(rebuild_s[1:]) * 1e3, 2),
+    }
+
+
+def bench_cut_methods(cells, size, epsilons=(0.0, 0.1)) -> list[dict]:
+    """Nodes and elements each method adds per cut element for the cut-event plane (thesis
+    5.2.1: about 2 nodes per cut element for paulus, 4.2 to 5.6 for Bielser)."""
+    from .cut import METHODS, Cutter
+    from .topology import TetTopology, connected_components
+
+    mesh, _, _, plane = _cut_setup(cells, size)
+    records = []
+    for method in METHODS:
+        for epsilon in (epsilons if method in ("paulus", "bielser") else epsilons[-1:]):
+            topology = TetTopology(mesh)
+            stats = Cutter(topology, method=method, epsilon=epsilon).cut(plane).stats
+            after = topology.to_mesh()
+            records.append({
+                "method": method, "epsilon": epsilon, "cut_elements": stats.cut_elements,
+                "added_nodes_per_cut_element": round((after.vertex_count - mesh.vertex_count) / stats.cut_elements, 2),
+                "added_elements_per_cut_element": round((after.tet_count - mesh.tet_count) / stats.cut_elements, 2),
+                "components": int(connected_components(after).max() + 1),
+            })
+    return records
+
+
+def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True, scenes=SCENES,
+                   cut_scenes=CUT_SCENES) -> dict:
     """Run every benchmark scene, print a table and optionally write JSON (atomically).
 
     ``forces_ns_per_element`` is the once-per-step element kernel (rotation, forces, right-hand
@@ -155,8 +229,25 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
         if progress and sys.stderr.isatty():
             print(f"[{i + 1}/{len(scenes)}] {name} ...", file=sys.stderr)
         records.append(bench_scene(name, cells, size, repeats=5 if quick else 20, reference_repeats=1 if quick else 3))
-    result = {"device": str(wp.get_device()), "warp": wp.config.version, "scenes": records}
-    _print_table(records)
+    cut_events = []
+    for i, (name, cells, size) in enumerate(cut_scenes):
+        if progress and sys.stderr.isatty():
+            print(f"[{i + 1}/{len(cut_scenes)}] cut event {name} ...", file=sys.stderr)
+        cut_events.append(bench_cut_event(name, cells, size, repeats=2 if quick else 7))
+    result = {"device": str(wp.get_device()), "warp": wp.config.version, "scenes": records, "cut_events": cut_events}
+    if cut_scenes:
+        result["cut_event_size_ratio"] = round(cut_events[-1]["event_ms"] / cut_events[0]["event_ms"], 2)
+        result["cut_methods"] = bench_cut_methods(*cut_scenes[0][1:])
+    if records:
+        _print_table(records)
+    if cut_scenes:
+        _print_rows(cut_events, [("name", "cut event"), ("tets", "tets"), ("cut_elements", "cut el"),
+                                 ("event_ms", "event ms"), ("cut_ms", "cut ms"), ("rebuild_ms", "rebuild ms")])
+        print(f"largest / smallest mesh: {result['cut_event_size_ratio']}x")
+        _print_rows(result["cut_methods"], [("method", "method"), ("epsilon", "eps"), ("cut_elements", "cut el"),
+                                            ("added_nodes_per_cut_element", "nodes/cut el"),
+                                            ("added_elements_per_cut_element", "elements/cut el"),
+                                            ("components", "pieces")])
     if json_path is not None:
         with atomic_path(json_path) as tmp:
             Path(tmp).write_text(json.dumps(result, indent=2) + "\n")
@@ -171,8 +262,12 @@ def _print_table(records) -> None:
                ("matvec_ns_per_element", "matvec ns/el"), ("forces_ns_per_element", "forces ns/el"),
                ("cg_fused_ms", "cg fused ms"),
                ("cg_warp_optim_ms", "cg warp.optim ms")]
+    _print_rows(records, columns)
+
+
+def _print_rows(records, columns) -> None:
     rows = [[str(r[key]) for key, _ in columns] for r in records]
-    widths = [max(len(title), *(len(row[i]) for row in rows)) for i, (_, title) in enumerate(columns)]
+    widths = [max([len(title)] + [len(row[i]) for row in rows]) for i, (_, title) in enumerate(columns)]
     print("  ".join(title.rjust(w) for (_, title), w in zip(columns, widths)))
     for row in rows:
         print("  ".join(cell.rjust(w) for cell, w in zip(row, widths)))

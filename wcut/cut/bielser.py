@@ -17,21 +17,18 @@ separation doubles them (5.2.1). Snapping with ``epsilon`` happens first, as in 
 from __future__ import annotations
 
 from ..mesh import TET_FACES
-from ..topology import TopologyError, bisect_edge, face_key
+import numpy as np
+
+from ..topology import TopologyError, bisect_edge, face_key, move_vertex
 from .cutter import MIN_SNAP, CutStats, Cutter, _edge
 
 
 def bielser_cut(cutter: Cutter, surface, slots, stats: CutStats) -> None:
     topo = cutter.topology
-    sampling = cutter.sample(surface, slots)
-    stats.cut_elements = len(sampling.cut_slots)
-    if not sampling.edges and not sampling.on:
-        return
     threshold = max(cutter.epsilon, MIN_SNAP) * cutter.mean_edge_length
-    snapped = cutter._snap(sampling, threshold, stats)
-    if snapped:
-        sampling = cutter.sample(surface, slots)
-    marked = set(sampling.on) | snapped
+    sampling, marked = cutter.snap(surface, slots, threshold, stats)
+    if not marked and not sampling.edges:
+        return
     cut_faces = set()
     for t in sampling.cut_slots:
         tet = topo.tet(t)
@@ -58,6 +55,24 @@ def bielser_cut(cutter: Cutter, surface, slots, stats: CutStats) -> None:
         except TopologyError as exc:
             stats.refused.append(str(exc))
             continue
+        _onto_surface_in_face(cutter, surface, f, key)
         stats.face_splits += 1
         marked.add(f)
     cutter._disconnect(surface, marked, stats)
+
+
+def _onto_surface_in_face(cutter: Cutter, surface, f: int, key) -> None:
+    """Slide face vertex ``f`` within its face ``key`` onto a curved surface: the midpoint of the
+    face's cut line is on the surface only where it is flat, and a vertex off the surface is
+    cut again by the next cut along it (a progressive cut recuts everything swept so far).
+    Left where it is if the move would spoil an element."""
+    corners = cutter.coordinates()[list(key)]
+    midpoint = cutter.coordinates()[f]
+    local = np.linalg.lstsq((corners[1:] - corners[0]).T, midpoint - corners[0], rcond=None)[0]
+    weights = np.concatenate([[1.0 - local.sum()], local])
+    moved = cutter._onto_surface(surface, corners, weights)
+    if moved is not weights:
+        try:
+            move_vertex(cutter.topology, f, list(key), moved)
+        except TopologyError:
+            pass

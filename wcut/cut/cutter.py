@@ -32,6 +32,7 @@ surface, then disconnects; ``delete`` removes every crossed element; ``bielser``
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,7 +40,8 @@ import numpy as np
 from ..errors import WcutError
 from ..mesh import TET_FACES
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
-                        flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, unsew_face)
+                        flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, tet_qualities,
+                        unsew_face)
 from .surface import CutSurface, Plane, TriangleSurface
 
 METHODS = ("paulus", "bielser", "snap", "delete")
@@ -49,6 +51,21 @@ TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 
 #: Distance (relative to the mean rest edge length) within which a vertex is on the surface.
 ON_SURFACE_TOL = 1e-6
+
+#: A piece the cut would free with at most this many elements and less than ``CRUMB_VOLUME``
+#: times the volume of a regular tetrahedron of the mean edge length stays attached: such
+#: crumbs are flat elements lying in the surface, and alone they would be unstable.
+CRUMB_ELEMENTS = 8
+CRUMB_VOLUME = 0.5
+
+#: A 2-3 flip must keep its elements' quality above this fraction of the worst quality of the
+#: two it replaces; else the face is split instead (a flip can make slivers).
+FLIP_QUALITY = 0.25
+
+#: Snapping may slide a vertex along a boundary edge over a curved boundary whose faces around
+#: it differ in normal by less than this (degrees): not a feature (thesis 5.1.2). Otherwise the
+#: cut would take a sliver off its corner. Flat boundaries and straight creases need no angle.
+FEATURE_ANGLE = 30.0
 
 #: Snapping threshold (relative) applied even when ``epsilon`` is smaller: crossings closer
 #: to a vertex than this would only make needle elements (thesis 5.1.4).
@@ -92,14 +109,16 @@ class _Sampling:
 
     def __init__(self, topo: TetTopology, x: np.ndarray, surface: CutSurface, slots: np.ndarray, tol: float):
         tets = topo.tets[slots]
-        edges = np.unique(np.sort(tets[:, TET_EDGES].reshape(-1, 2), axis=1), axis=0)
+        pairs = np.sort(tets[:, TET_EDGES].reshape(-1, 2), axis=1)
+        n = np.int64(topo.vertex_count)
+        keys, inverse = np.unique(pairs[:, 0] * n + pairs[:, 1], return_inverse=True)
+        edges = np.stack([keys // n, keys % n], axis=1)
         verts = np.unique(tets)
         self.on = set(verts[surface.distance(x[verts], tol) <= tol].tolist())
         t, normal = surface.crossings(x[edges[:, 0]], x[edges[:, 1]], tol)
         hit = np.isfinite(t)
-        self.edges = {(int(a), int(b)): (float(s), n) for (a, b), s, n in zip(edges[hit], t[hit], normal[hit])}
-        self.cut_slots = [int(s) for s, tet in zip(slots, tets.tolist())
-                          if any(_edge(tet[i], tet[j]) in self.edges for i, j in TET_EDGES)]
+        self.edges = {(a, b): (s, n) for (a, b), s, n in zip(edges[hit].tolist(), t[hit].tolist(), normal[hit])}
+        self.cut_slots = slots[hit[inverse.reshape(-1)].reshape(-1, 6).any(axis=1)].tolist()
 
 
 def _edge(a: int, b: int) -> tuple[int, int]:
@@ -201,7 +220,7 @@ class Cutter:
     def _candidates(self, surface: CutSurface, bounds) -> np.ndarray:
         """Live elements with a vertex near the surface (within the longest edge of a plane,
         or inside its box grown by twice the longest edge): every element the surface
-        crosses, found with a few vectorised passes so the cut's cost follows the surface."""
+        crosses: one vectorised pass over the vertices, then their elements by adjacency."""
         topo = self.topology
         x = self.coordinates()
         if isinstance(surface, Plane) and bounds is None:
@@ -211,8 +230,10 @@ class Cutter:
             lower = np.asarray(lower, float) - self._margin
             upper = np.asarray(upper, float) + self._margin
             near = np.all((x >= lower) & (x <= upper), axis=1)
-        slots = topo.live_tets()
-        return slots[near[topo.tets[slots]].any(axis=1)]
+        around: set[int] = set()
+        for v in np.flatnonzero(near).tolist():
+            around |= topo.vertex_tets[v]
+        return np.array(sorted(around), dtype=np.int64)
 
     def _progressive_surface(self, increment: CutSurface, bounds) -> tuple[CutSurface, np.ndarray]:
         """Everything swept so far, welded into one surface, and the elements near
@@ -260,11 +281,27 @@ class Cutter:
         return crossed
 
     def sample(self, surface: CutSurface, slots) -> _Sampling:
-        return _Sampling(self.topology, self.coordinates(), surface, np.asarray(slots, dtype=np.int64), self.tolerance)
+        """Crossings of ``surface`` with the edges of elements ``slots``."""
+        return _Sampling(self.topology, self.coordinates(), surface, np.asarray(slots, dtype=np.int64),
+                         self.tolerance)
+
+    def snap(self, surface: CutSurface, slots, threshold: float, stats: CutStats) -> tuple[_Sampling, set[int]]:
+        """Sample, snap (thesis 5.1.3) and sample again: the sampling after snapping and the
+        vertices on the cut (on the surface or snapped)."""
+        sampling = self.sample(surface, slots)
+        stats.cut_elements = len(sampling.cut_slots)
+        if not sampling.edges:
+            return sampling, set(sampling.on)
+        snapped = self._snap(sampling, threshold, stats)
+        if snapped:
+            sampling = self.sample(surface, slots)
+        return sampling, set(sampling.on) | snapped
 
     def _snap(self, sampling: _Sampling, threshold: float, stats: CutStats) -> set[int]:
         """Snap the nearest vertex of each crossed edge onto its crossing when its distance to
-        the plane (crossing, normal) is below ``threshold`` (m), nearest first (thesis 5.1.3)."""
+        the plane (crossing, normal) is below ``threshold`` (m), nearest first (thesis 5.1.3).
+        A boundary vertex may slide over a smooth curved boundary (:data:`FEATURE_ANGLE`).
+        Returns the vertices moved."""
         x = self.coordinates()
         moves = []
         for (a, b), (t, n) in sampling.edges.items():
@@ -278,7 +315,7 @@ class Cutter:
             if v in snapped or other in snapped or v in sampling.on:
                 continue
             try:
-                move_vertex(self.topology, v, [v, other], [1.0 - s, s])
+                move_vertex(self.topology, v, [v, other], [1.0 - s, s], feature_angle=FEATURE_ANGLE)
             except TopologyError as exc:
                 stats.refused.append(str(exc))
                 continue
@@ -288,16 +325,10 @@ class Cutter:
 
     # ---------------------------------------------------------------- paulus
     def _remesh(self, surface: CutSurface, slots: np.ndarray, stats: CutStats) -> None:
-        topo = self.topology
-        sampling = self.sample(surface, slots)
-        stats.cut_elements = len(sampling.cut_slots)
-        if not sampling.edges and not sampling.on:
-            return
         epsilon = np.inf if self.method == "snap" else max(self.epsilon, MIN_SNAP)
-        snapped = self._snap(sampling, epsilon * self.mean_edge_length, stats)
-        if snapped:
-            sampling = self.sample(surface, slots)
-        marked = set(sampling.on) | snapped
+        sampling, marked = self.snap(surface, slots, epsilon * self.mean_edge_length, stats)
+        if not marked and not sampling.edges:
+            return
         if self.method == "paulus":
             marked |= self._insert_surface(surface, sampling, stats)
         self._disconnect(surface, marked, stats)
@@ -335,7 +366,7 @@ class Cutter:
         for key in faces:
             if key not in topo.face_tets:
                 continue
-            if len(topo.face_tets[key]) == 2:
+            if len(topo.face_tets[key]) == 2 and self._flip_keeps_quality(key):
                 try:
                     flip23(topo, key)
                     stats.flips23 += 1
@@ -371,6 +402,19 @@ class Cutter:
             marked.add(m)
         return marked
 
+    def _flip_keeps_quality(self, key) -> bool:
+        """Whether the 2-3 flip of interior face ``key`` keeps the worst element quality (volume /
+        longest edge^3, rest configuration) above ``FLIP_QUALITY`` times that of the two
+        elements it replaces. A flip can make a sliver; the face is then split instead."""
+        topo = self.topology
+        x = topo.rest_positions
+        a, b, c = key
+        owners = topo.face_tets[key]
+        d, e = (next(v for v in topo.tet(t) if v not in key) for t in owners)
+        flipped = np.array([x[[d, e, u, w]] for u, w in ((a, b), (b, c), (c, a))])
+        before = tet_qualities(x[topo.tets[owners]]).min()
+        return np.abs(tet_qualities(flipped)).min() >= FLIP_QUALITY * before
+
     def _element_point(self, surface: CutSurface, sampling: _Sampling, tet: list[int]):
         """Barycentric weights of the 1-4 split vertex of element ``tet`` (thesis 5.1.1, 5.3)
         and whether it lies on the cut: the barycentre of the crossings and on-vertices, or,
@@ -402,6 +446,9 @@ class Cutter:
         would halve the point's smallest weight (the operators' quality check would refuse
         flatter elements)."""
         p = weights @ corners
+        origin, normal = (a[0] for a in surface.tangent_planes(p[None]))
+        if abs(float(normal @ (p - origin))) <= self.tolerance:
+            return weights  # on S already (S flat here)
         span = None
         if len(corners) == 3:
             span = np.cross(corners[1] - corners[0], corners[2] - corners[0])
@@ -459,31 +506,74 @@ class Cutter:
         """Unsew interior faces whose three vertices are on the cut and which lie on the
         surface, then duplicate their vertices once per fan (thesis 5.1.3)."""
         topo = self.topology
-        faces = set()
+        elements: set[int] = set()
         for v in marked:
-            for t in topo.vertex_tets[v]:
-                tet = topo.tet(t)
-                for local in TET_FACES.tolist():
-                    tri = [tet[i] for i in local]
-                    if all(u in marked for u in tri):
-                        faces.add(face_key(*tri))
-        x = self.coordinates()
+            elements |= topo.vertex_tets[v]
+        faces = set()
+        for t in elements:
+            on = sorted(u for u in topo.tets[t].tolist() if u in marked)
+            if len(on) == 3:
+                faces.add(tuple(on))
+            elif len(on) == 4:
+                faces.update(itertools.combinations(on, 3))
+        keys = [key for key in sorted(faces) if len(topo.face_tets.get(key, ())) == 2]
         opened = []
-        for key in sorted(faces):
-            if len(topo.face_tets.get(key, ())) != 2:
-                continue
-            corners = x[list(key)]
-            reach = 0.25 * np.linalg.norm(corners - corners.mean(axis=0), axis=1).max() + self.tolerance
-            centre = corners.mean(axis=0)[None]
-            if surface.distance(centre, reach)[0] > reach:
-                continue  # three vertices on the cut, but the face spans across it
-            opened.append(key)
+        if keys:
+            corners = self.coordinates()[np.asarray(keys)]  # (F, 3, 3)
+            centre = corners.mean(axis=1)
+            # a face with three vertices on the cut may still span across it: its centre is off
+            reach = 0.25 * np.linalg.norm(corners - centre[:, None], axis=2).max(axis=1) + self.tolerance
+            near = surface.distance(centre, float(reach.max())) <= reach
+            opened = [key for key, ok in zip(keys, near.tolist()) if ok]
+        opened = self._keep_attached(opened)
         for key in opened:
             unsew_face(topo, key)
         stats.unsewn_faces += len(opened)
         for v in sorted({v for key in opened for v in key}):
             stats.duplicated_vertices += len(duplicate_vertex(topo, v))
         sew_unopened(topo)
+
+    def _keep_attached(self, opened: list) -> list:
+        """``opened`` less the faces that would cut a crumb loose: a piece of at most
+        ``CRUMB_ELEMENTS`` elements and less than ``CRUMB_VOLUME`` times the volume of a regular
+        tetrahedron of the mean edge length (flat elements lying in the surface, which get all
+        their faces on the cut). Its largest opened face stays sewn, so the crumb stays with
+        the neighbour across it; that bridges nothing, its other faces being open."""
+        topo = self.topology
+        x = topo.rest_positions
+        opened_set = set(opened)
+        crumb_volume = CRUMB_VOLUME * self.mean_edge_length**3 / (6.0 * np.sqrt(2.0))
+
+        def closed(face):
+            return face in opened_set or face in topo.unsewn or len(topo.face_tets[face]) == 1
+
+        def piece(start):
+            """The elements reachable from ``start`` through sewn faces, if few; else None."""
+            seen, stack = {start}, [start]
+            while stack:
+                tet = topo.tet(stack.pop())
+                for local in TET_FACES.tolist():
+                    face = face_key(*[tet[i] for i in local])
+                    if closed(face):
+                        continue
+                    for t in topo.face_tets[face]:
+                        if t not in seen:
+                            if len(seen) == CRUMB_ELEMENTS:
+                                return None
+                            seen.add(t)
+                            stack.append(t)
+            return seen
+
+        for start in sorted({t for key in opened for t in topo.face_tets[key]}):
+            crumb = piece(start)
+            if crumb is None or sum(topo.rest_volume(t) for t in crumb) >= crumb_volume:
+                continue
+            faces = {face_key(*[topo.tet(t)[i] for i in local]) for t in crumb for local in TET_FACES.tolist()}
+            mine = sorted(f for f in faces if f in opened_set)
+            if mine:
+                area = [np.linalg.norm(np.cross(x[f[1]] - x[f[0]], x[f[2]] - x[f[0]])) for f in mine]
+                opened_set.discard(mine[int(np.argmax(area))])
+        return [key for key in opened if key in opened_set]
 
     # ---------------------------------------------------------------- delete
     def _delete(self, surface: CutSurface, slots: np.ndarray, stats: CutStats) -> None:

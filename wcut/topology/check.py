@@ -11,7 +11,7 @@ import numpy as np
 
 from ..mesh import DEGENERATE_TOL, TET_FACES, TetMesh
 from .mesh import TetTopology, TopologyError, face_key
-from .operators import _qualities
+from .operators import tet_qualities
 
 
 def check_topology(topo: TetTopology, volume: float | None = None, volume_tolerance: float = 1e-9) -> None:
@@ -26,7 +26,7 @@ def check_topology(topo: TetTopology, volume: float | None = None, volume_tolera
     slots = topo.live_tets()
     tets = topo.tets[slots]
     rest = topo.rest_positions
-    q = _qualities(rest[tets])
+    q = tet_qualities(rest[tets])
     if len(q) and not q.min() > DEGENERATE_TOL:
         t = int(slots[np.argmin(q)])
         raise TopologyError(f"element {t} {topo.tet(t)} has quality {q.min():.2e}")

@@ -225,10 +225,12 @@ class TetTopology:
         """Map points of the current configuration (m) to the rest configuration (m).
 
         A point inside an element keeps its barycentric coordinates there (for linear elements
-        the rest-to-current map is affine per element, thesis 3.2); a point outside the mesh is
-        carried by the affine map of the element whose centroid is nearest (a blade's ends stick
-        out of the body). Only elements near the points' bounding box are searched, so the cost
-        follows the points, not the mesh.
+        the rest-to-current map is affine per element, thesis 3.2). A point outside the mesh (a
+        blade's ends stick out of the body) is carried from the nearest boundary point q by
+        the affine map of q's element: rest(q) + F^-1 (p - q). Extrapolating from q rather than
+        from a nearby element's centre keeps an outside point outside under bending (the
+        error grows with the distance from q, not from the element). Only elements near the
+        points' bounding box are searched, so the cost follows the points, not the mesh.
         """
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         slots = self.live_tets()
@@ -241,14 +243,39 @@ class TetTopology:
             near[:] = True
         slots, corners = slots[near], corners[near]
         edges = np.transpose(corners[:, 1:] - corners[:, :1], (0, 2, 1))  # columns x1-x0, x2-x0, x3-x0
-        inverse = np.linalg.inv(edges)
-        local = np.einsum("mij,pmj->pmi", inverse, p[:, None, :] - corners[None, :, 0])  # (P, M, 3)
+        local = np.einsum("mij,pmj->pmi", np.linalg.inv(edges), p[:, None, :] - corners[None, :, 0])  # (P, M, 3)
         bary = np.concatenate([1.0 - local.sum(axis=2, keepdims=True), local], axis=2)
-        inside = bary.min(axis=2)
-        centroid_gap = np.linalg.norm(p[:, None, :] - corners.mean(axis=1)[None], axis=2)
-        best = np.where(inside.max(axis=1) >= -1e-12, inside.argmax(axis=1), centroid_gap.argmin(axis=1))
+        best = bary.min(axis=2).argmax(axis=1)
+        inside = bary.min(axis=2).max(axis=1) >= -1e-9
         weights = bary[np.arange(len(p)), best]  # (P, 4)
-        return np.einsum("pk,pkj->pj", weights, rest[self.tets[slots[best]]])
+        out = np.einsum("pk,pkj->pj", weights, rest[self.tets[slots[best]]])
+        if not inside.all():
+            out[~inside] = self._rest_points_outside(p[~inside], slots)
+        return out
+
+    def _rest_points_outside(self, p: np.ndarray, slots: np.ndarray) -> np.ndarray:
+        """:meth:`rest_points` of points outside the mesh, by the boundary faces of ``slots``."""
+        faces, owners = [], []
+        for t in slots.tolist():
+            tet = self.tets[t]
+            for local in TET_FACES:
+                tri = tet[local]
+                if len(self.face_tets[face_key(*tri.tolist())]) == 1:
+                    faces.append(tri)
+                    owners.append(t)
+        faces = np.array(faces, dtype=np.int64).reshape(-1, 3)
+        x, rest = self.positions, self.rest_positions
+        a, b, c = (np.broadcast_to(x[faces[:, k]], (len(p), len(faces), 3)) for k in range(3))
+        bary, gap = _closest_on_triangles(np.broadcast_to(p[:, None], a.shape), a, b, c)
+        nearest = gap.argmin(axis=1)
+        rows = np.arange(len(p))
+        weights, face = bary[rows, nearest], faces[nearest]
+        tets = self.tets[np.asarray(owners)[nearest]]
+        current = np.transpose(x[tets[:, 1:]] - x[tets[:, :1]], (0, 2, 1))
+        initial = np.transpose(rest[tets[:, 1:]] - rest[tets[:, :1]], (0, 2, 1))
+        inverse_gradient = initial @ np.linalg.inv(current)  # F^-1 of the element owning the face
+        q = np.einsum("pk,pkj->pj", weights, x[face])
+        return np.einsum("pk,pkj->pj", weights, rest[face]) + np.einsum("pij,pj->pi", inverse_gradient, p - q)
 
     def to_mesh(self, name: str | None = None) -> TetMesh:
         """The live elements as a :class:`TetMesh` (elements in slot order, vertices as
@@ -417,3 +444,30 @@ class _Journal:
         if origin_tet >= 0:
             self.vertex_origin[v] = self.origin_of(origin_tet)
         self.reshaped.update(self.topo.vertex_tets[v])  # a moved vertex reshapes its elements
+
+
+def _closest_on_triangles(p, a, b, c) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points of triangles (a, b, c) to points p (arrays (..., 3), m): their barycentric
+    coordinates (..., 3) and the distances (...,). Inside the triangle the plane projection,
+    else the nearest point of its three edges."""
+    ab, ac, ap = b - a, c - a, p - a
+    d00, d01, d11 = (np.einsum("...i,...i->...", u, v) for u, v in ((ab, ab), (ab, ac), (ac, ac)))
+    d20, d21 = np.einsum("...i,...i->...", ap, ab), np.einsum("...i,...i->...", ap, ac)
+    det = d00 * d11 - d01 * d01
+    v = (d11 * d20 - d01 * d21) / det
+    w = (d00 * d21 - d01 * d20) / det
+    bary = np.stack([1.0 - v - w, v, w], axis=-1)
+    inside = (bary >= 0.0).all(axis=-1)
+    corners = np.stack((a, b, c))
+    best, best_gap = bary, np.full(inside.shape, np.inf)
+    for i, j in ((0, 1), (1, 2), (2, 0)):  # outside: the nearest point of the three edges
+        e = corners[j] - corners[i]
+        s = np.clip(np.einsum("...i,...i->...", p - corners[i], e) / np.einsum("...i,...i->...", e, e), 0.0, 1.0)
+        candidate = np.zeros_like(bary)
+        candidate[..., i], candidate[..., j] = 1.0 - s, s
+        gap = np.linalg.norm(p - np.einsum("...k,k...j->...j", candidate, corners), axis=-1)
+        better = ~inside & (gap < best_gap)
+        best = np.where(better[..., None], candidate, best)
+        best_gap = np.where(better, gap, best_gap)
+    bary = best
+    return bary, np.linalg.norm(p - np.einsum("...k,k...j->...j", bary, corners), axis=-1)

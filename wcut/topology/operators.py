@@ -20,7 +20,7 @@ from ..mesh import DEGENERATE_TOL, TET_FACES
 from .mesh import REST, TetTopology, TopologyError, face_key, signed_volume
 
 
-def _qualities(points: np.ndarray) -> np.ndarray:
+def tet_qualities(points: np.ndarray) -> np.ndarray:
     """Quality (volume / longest edge^3) of (M, 4, 3) tetrahedra."""
     d1, d2, d3 = (points[:, i] - points[:, 0] for i in (1, 2, 3))
     volume = np.einsum("ij,ij->i", np.cross(d1, d2), d3) / 6.0
@@ -36,7 +36,7 @@ def _check(topo: TetTopology, tets: list[list[int]], what: str, extra: dict | No
     rest = topo.vertex_data[:, REST]
     points = np.array([[extra[v] if v < 0 else rest[v] for v in tet] for tet in tets])
     # The simulation sees float32 rest positions: the element must survive that rounding.
-    q = np.minimum(_qualities(points), _qualities(points.astype(np.float32).astype(np.float64)))
+    q = np.minimum(tet_qualities(points), tet_qualities(points.astype(np.float32).astype(np.float64)))
     worst = int(np.argmin(q))
     if not q[worst] > DEGENERATE_TOL:
         state = "inverted" if q[worst] < 0 else "flat"
@@ -157,7 +157,7 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     poly = np.asarray(polygon)[triples]
     pts_b = rest[np.column_stack([poly, np.full(len(poly), b)])]
     pts_a = rest[np.column_stack([poly[:, [0, 2, 1]], np.full(len(poly), a)])]
-    quality = np.minimum(_qualities(pts_a), _qualities(pts_b))
+    quality = np.minimum(tet_qualities(pts_a), tet_qualities(pts_b))
     q = {tuple(t): v for t, v in zip(triples.tolist(), quality.tolist())}
     best: dict[tuple[int, int], tuple[float, int]] = {}
     for span in range(2, m):
@@ -185,12 +185,16 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     return topo.replace_tets(ring, added, _containing(topo, ring, added))
 
 
-def move_vertex(topo: TetTopology, v: int, parents, weights) -> None:
+def move_vertex(topo: TetTopology, v: int, parents, weights, *, feature_angle: float = 0.0) -> None:
     """Move vertex v (snapping, thesis 5.1.3) to the barycentric combination of ``parents``.
 
     Refused when an element around v would invert or flatten, or, for a boundary vertex,
-    unless the target lies in the plane of every boundary face around v: the vertex slides
-    within a flat boundary or along a straight crease, so the boundary and the volume stay."""
+    unless the target lies in the plane of every boundary face around v (the vertex slides
+    within a flat boundary or along a straight crease, so the boundary and the volume stay)
+    or, with ``feature_angle`` (degrees) > 0, the vertex slides along one of its boundary
+    edges (``parents`` = (v, other end)) on a smooth boundary: no two of its boundary faces'
+    normals differ by ``feature_angle`` or more. That slide changes the volume, by a
+    fraction second order in the step, as the thesis's boundary flips do (5.1.2)."""
     weights = _weights(weights, len(parents), f"moving vertex {v}")
     target = _point(topo, parents, weights)
     around = sorted(topo.vertex_tets[v])
@@ -199,8 +203,16 @@ def move_vertex(topo: TetTopology, v: int, parents, weights) -> None:
     if len(normals):
         step = target - topo.vertex_data[v, REST]
         if np.abs(normals @ step).max() > 1e-12 * (np.linalg.norm(step) + 1e-300):
-            raise TopologyError(f"moving boundary vertex {v} would take it off its boundary")
+            along = len(parents) == 2 and v in parents and _is_boundary_edge(topo, *parents)
+            smooth = (normals @ normals.T).min() > np.cos(np.radians(feature_angle))
+            if not (along and smooth and feature_angle > 0.0):
+                raise TopologyError(f"moving boundary vertex {v} would take it off its boundary")
     topo.set_vertex(v, list(parents), weights)
+
+
+def _is_boundary_edge(topo: TetTopology, a: int, b: int) -> bool:
+    ring = topo.edge_tets(a, b)
+    return any(len(topo.face_tets[face_key(a, b, c)]) == 1 for t in ring for c in topo.tet(t) if c not in (a, b))
 
 
 def _boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
