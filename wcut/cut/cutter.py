@@ -60,7 +60,7 @@ CRUMB_VOLUME = 0.5
 
 #: A 2-3 flip must keep its elements' quality above this fraction of the worst quality of the
 #: two it replaces; else the face is split instead (a flip can make slivers).
-FLIP_QUALITY = 0.25
+FLIP_QUALITY = 0.1
 
 #: Snapping may slide a vertex along a boundary edge over a curved boundary whose faces around
 #: it differ in normal by less than this (degrees): not a feature (thesis 5.1.2). Otherwise the
