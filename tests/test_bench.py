@@ -4,14 +4,22 @@
 import json
 
 from wcut.bench import run_benchmarks
+from wcut.cut import METHODS
 
 KEYS = {"name", "tets", "nodes", "step_ms", "reference_step_ms", "speedup_vs_reference", "rotation_ns_per_element",
         "matvec_ns_per_element"}
+CUT_KEYS = {"name", "tets", "nodes", "cut_elements", "event_ms", "cut_ms", "rebuild_ms"}
+METHOD_KEYS = {"method", "epsilon", "cut_elements", "added_nodes_per_cut_element", "added_elements_per_cut_element",
+               "components"}
+
+#: Two short beams of 1 cm cells with the 4 x 5 cross-section of wcut.bench.CUT_SCENES.
+TINY_CUTS = (("tiny_cut", (6, 4, 5), (0.06, 0.04, 0.05)), ("tiny_cut2", (10, 4, 5), (0.10, 0.04, 0.05)))
 
 
 def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     path = tmp_path / "bench.json"
-    result = run_benchmarks(path, quick=True, progress=False, scenes=(("tiny", (2, 2, 4), (0.02, 0.02, 0.04)),))
+    result = run_benchmarks(path, quick=True, progress=False, scenes=(("tiny", (2, 2, 4), (0.02, 0.02, 0.04)),),
+                            cut_scenes=TINY_CUTS)
     written = json.loads(path.read_text())
     assert written == json.loads(json.dumps(result))
     (record,) = written["scenes"]
@@ -21,7 +29,46 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
         assert record[key] > 0, key
     assert abs(record["speedup_vs_reference"] - record["reference_step_ms"] / record["step_ms"]) < 0.05 * \
         record["speedup_vs_reference"] + 0.01
-    assert "tiny" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "tiny" in out and "tiny_cut2" in out and "bielser" in out
+
+    # cut events: the plane crosses the 4 x 5 cross-section, 100 elements, whatever the length
+    events = written["cut_events"]
+    assert [e["name"] for e in events] == ["tiny_cut", "tiny_cut2"]
+    for event, (_, (nx, ny, nz), _) in zip(events, TINY_CUTS):
+        assert set(event) == CUT_KEYS
+        assert event["tets"] == 5 * nx * ny * nz and event["nodes"] == (nx + 1) * (ny + 1) * (nz + 1)
+        assert event["cut_elements"] == 100
+        for key in ("event_ms", "cut_ms", "rebuild_ms"):
+            assert event[key] > 0, key
+        # each repetition's event is its cut plus its rebuild, so the medians are ordered too
+        assert max(event["cut_ms"], event["rebuild_ms"]) <= event["event_ms"] + 0.01
+    assert abs(written["cut_event_size_ratio"] - events[1]["event_ms"] / events[0]["event_ms"]) <= 0.006
+
+    # the methods on the first cut scene's plane
+    methods = written["cut_methods"]
+    assert all(set(m) == METHOD_KEYS for m in methods)
+    assert {m["method"] for m in methods} == set(METHODS)
+    by = {(m["method"], m["epsilon"]): m for m in methods}
+    assert {("paulus", 0.0), ("paulus", 0.1), ("bielser", 0.0), ("bielser", 0.1)} <= set(by)
+    for m in methods:
+        assert m["cut_elements"] == 100, m
+        assert m["components"] == 2, m  # every method separates the beam
+    for epsilon in (0.0, 0.1):
+        paulus, bielser = by["paulus", epsilon], by["bielser", epsilon]
+        assert 0 < paulus["added_nodes_per_cut_element"] < bielser["added_nodes_per_cut_element"]
+        assert 0 < paulus["added_elements_per_cut_element"] < bielser["added_elements_per_cut_element"]
+    (delete,) = [m for m in methods if m["method"] == "delete"]
+    assert delete["added_nodes_per_cut_element"] == 0.0 and delete["added_elements_per_cut_element"] == -1.0
+    (snap,) = [m for m in methods if m["method"] == "snap"]
+    assert snap["added_elements_per_cut_element"] == 0.0  # it only moves and duplicates vertices
+
+
+def test_benchmark_without_cut_scenes_reports_no_cut_results(tmp_path):
+    result = run_benchmarks(tmp_path / "bench.json", quick=True, progress=False, scenes=(), cut_scenes=())
+    assert result["scenes"] == [] and result["cut_events"] == []
+    assert "cut_event_size_ratio" not in result and "cut_methods" not in result
+    assert json.loads((tmp_path / "bench.json").read_text()) == result
 
 
 def test_benchmark_checks_its_output_before_running(tmp_path, monkeypatch):
@@ -32,5 +79,6 @@ def test_benchmark_checks_its_output_before_running(tmp_path, monkeypatch):
 
     (tmp_path / "blocked").write_text("a file where a directory is needed")
     monkeypatch.setattr(wcut.bench, "bench_scene", lambda *a, **k: pytest.fail("benchmarked before the check"))
+    monkeypatch.setattr(wcut.bench, "bench_cut_event", lambda *a, **k: pytest.fail("benchmarked before the check"))
     with pytest.raises(ExportError, match="cannot write here"):
         run_benchmarks(tmp_path / "blocked" / "bench.json", progress=False)

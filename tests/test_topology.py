@@ -825,3 +825,150 @@ def test_rest_points_keeps_barycentric_coordinates_under_a_nonlinear_deformation
     np.testing.assert_allclose(topo.rest_points(current), expected, rtol=0, atol=1e-12)
     # and not the exact inverse of the bending: the elements are linear
     assert np.abs(expected - current).max() > 0.05
+
+
+# ---------------------------------------------------------------------------------------------
+# move_vertex on a curved boundary: feature_angle
+
+
+DISH_SIZE = (1.0, 1.0, 0.5)
+
+
+def _dish_vertex(i, j, k):
+    """Index of grid vertex (i, j, k) of :func:`dish` (4 x 4 x 2 cells)."""
+    return _grid_vertex(i, j, k, ny=4, nz=2)
+
+
+def dish() -> TetTopology:
+    """A 4x4x2 beam whose top is a shallow bowl: z += 0.3 (z / 0.5) ((x - 0.5)^2 + (y - 0.5)^2).
+    The bottom and the four sides stay flat; the top meets them at creases of about 90 degrees;
+    around an inner top vertex the boundary normals differ by about 12 degrees."""
+    grid = beam(4, 4, 2, size=DISH_SIZE)
+    x = grid.vertices.copy()
+    x[:, 2] += 0.3 * (x[:, 2] / DISH_SIZE[2]) * ((x[:, 0] - 0.5) ** 2 + (x[:, 1] - 0.5) ** 2)
+    return make_topology(TetMesh(x, grid.tets, name="dish"))
+
+
+def _normal_spread(topo: TetTopology, v: int) -> float:
+    """Largest angle (degrees) between two boundary-face normals around vertex v."""
+    n = _boundary_normals_of(topo, v)
+    return float(np.degrees(np.arccos(np.clip((n @ n.T).min(), -1.0, 1.0))))
+
+
+def _boundary_normals_of(topo: TetTopology, v: int) -> np.ndarray:
+    """Unit normals of the boundary faces around v, from the boundary triangles (outward)."""
+    rest = topo.rest_positions
+    tri = topo.boundary_faces()
+    tri = tri[(tri == v).any(axis=1)]
+    n = np.cross(rest[tri[:, 1]] - rest[tri[:, 0]], rest[tri[:, 2]] - rest[tri[:, 0]])
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def _neighbours(topo: TetTopology, v: int) -> list[int]:
+    return sorted({u for t in topo.vertex_tets[v] for u in topo.tet(t)} - {v})
+
+
+SMOOTH = _dish_vertex(1, 2, 2)  # on the curved top, away from the creases
+
+
+def test_dish_boundary_is_smooth_inside_and_creased_at_the_rim():
+    """The fixture is what the feature_angle tests need."""
+    topo = dish()
+    assert 5.0 < _normal_spread(topo, SMOOTH) < 30.0
+    assert _normal_spread(topo, _dish_vertex(0, 2, 2)) > 80.0  # top meets the side x = 0
+    assert _normal_spread(topo, _dish_vertex(0, 0, 2)) > 80.0  # a corner
+    assert _normal_spread(topo, _dish_vertex(0, 2, 1)) < 1e-6  # middle of the flat side x = 0
+    on_boundary = boundary_edges(topo)
+    assert sum((min(SMOOTH, u), max(SMOOTH, u)) in on_boundary for u in _neighbours(topo, SMOOTH)) == 8
+
+
+@pytest.mark.parametrize("weight", [0.1, 0.25, 0.4])
+def test_move_vertex_slides_along_a_boundary_edge_of_a_smooth_curved_boundary(weight):
+    """With feature_angle = 30 a vertex of the smooth curved top may slide along any of its
+    boundary edges: the mesh stays valid, the attributes are interpolated, and the volume
+    changes a little (the edge is a chord of the curved surface, not on it)."""
+    on_boundary = boundary_edges(dish())
+    slid = 0
+    for u in _neighbours(dish(), SMOOTH):
+        if (min(SMOOTH, u), max(SMOOTH, u)) not in on_boundary:
+            continue
+        topo = dish()
+        v0 = volume(topo)
+        expected = (1 - weight) * topo.vertex_data[SMOOTH] + weight * topo.vertex_data[u]
+        move_vertex(topo, SMOOTH, [SMOOTH, u], [1 - weight, weight], feature_angle=30.0)
+        np.testing.assert_allclose(topo.vertex_data[SMOOTH], expected, rtol=0, atol=1e-14)
+        assert_affine(topo)
+        v1 = volume(topo)
+        check_topology(topo, v1)  # every other invariant holds
+        change = abs(v1 - v0) / v0
+        assert 1e-5 < change < 5e-3 * weight / 0.25, (u, change)
+        with pytest.raises(TopologyError, match="volume"):
+            check_topology(topo, v0)
+        slid += 1
+    assert slid == 8
+
+
+def test_move_vertex_on_a_curved_boundary_is_refused_by_default():
+    """feature_angle = 0 (the default): a boundary vertex never leaves the planes of its faces."""
+    topo = dish()
+    u = _dish_vertex(2, 2, 2)
+    assert (SMOOTH, u) in boundary_edges(topo)
+    assert_refused(topo, move_vertex, SMOOTH, [SMOOTH, u], [0.75, 0.25], match="off its boundary")
+    assert_refused(topo, move_vertex, SMOOTH, [SMOOTH, u], [0.75, 0.25], feature_angle=0.0,
+                   match="off its boundary")
+
+
+def test_move_vertex_feature_angle_is_a_threshold_on_the_normals_spread():
+    """Just below the spread of the normals around the vertex: refused; just above: allowed."""
+    topo = dish()
+    spread = _normal_spread(topo, SMOOTH)
+    u = _dish_vertex(2, 2, 2)
+    assert_refused(topo, move_vertex, SMOOTH, [SMOOTH, u], [0.75, 0.25], feature_angle=0.95 * spread)
+    move_vertex(topo, SMOOTH, [SMOOTH, u], [0.75, 0.25], feature_angle=1.05 * spread)
+    check_topology(topo)
+    assert_affine(topo)
+    np.testing.assert_allclose(topo.rest_positions[SMOOTH], 0.75 * dish().rest_positions[SMOOTH]
+                               + 0.25 * dish().rest_positions[u], rtol=0, atol=1e-14)
+
+
+def test_move_vertex_on_a_curved_boundary_is_refused_into_the_body():
+    """Even with feature_angle, a boundary vertex may not move along an interior edge (into the
+    body), nor to a combination of more than its edge's two ends."""
+    topo = dish()
+    on_boundary = boundary_edges(topo)
+    inner = [u for u in _neighbours(topo, SMOOTH) if (min(SMOOTH, u), max(SMOOTH, u)) not in on_boundary]
+    assert _dish_vertex(1, 2, 1) in inner and len(inner) == 5
+    for u in inner:
+        assert_refused(topo, move_vertex, SMOOTH, [SMOOTH, u], [0.8, 0.2], feature_angle=30.0,
+                       match="off its boundary")
+    a, b = _dish_vertex(2, 2, 2), _dish_vertex(1, 3, 2)  # two boundary neighbours: a point off every edge
+    assert_refused(topo, move_vertex, SMOOTH, [SMOOTH, a, b], [0.8, 0.1, 0.1], feature_angle=30.0,
+                   match="off its boundary")
+
+
+@pytest.mark.parametrize("ijk", [(0, 2, 2), (0, 0, 2), (4, 1, 2)])
+def test_move_vertex_refused_at_a_crease_even_with_feature_angle(ijk):
+    """At the rim (the curved top meets a flat side, normals about 90 degrees apart) and at a
+    corner, no slide along a boundary edge that leaves a face's plane is allowed."""
+    topo = dish()
+    v = _dish_vertex(*ijk)
+    on_boundary = boundary_edges(topo)
+    tried = 0
+    for u in _neighbours(topo, v):
+        if (min(v, u), max(v, u)) not in on_boundary:
+            continue
+        step = topo.rest_positions[u] - topo.rest_positions[v]
+        if np.abs(_boundary_normals_of(topo, v) @ step).max() < 1e-9:
+            continue  # a slide within every face's plane (along the straight bottom crease, say)
+        assert_refused(topo, move_vertex, v, [v, u], [0.8, 0.2], feature_angle=30.0, match="off its boundary")
+        tried += 1
+    assert tried >= 2
+
+
+def test_move_vertex_within_a_flat_boundary_of_the_dish_keeps_the_volume():
+    """On the flat side and bottom a slide within the face plane is allowed with the default,
+    and the volume is kept exactly."""
+    for v, u in [(_dish_vertex(0, 2, 1), _dish_vertex(0, 1, 1)), (_dish_vertex(2, 2, 0), _dish_vertex(1, 2, 0))]:
+        topo = dish()
+        assert (min(v, u), max(v, u)) in boundary_edges(topo)
+        applied(topo, move_vertex, v, [v, u], [0.7, 0.3], tets=0)

@@ -167,6 +167,64 @@ def _untouched_vertices(change) -> np.ndarray:
     return np.flatnonzero(~new_or_moved & (change.vertex_weights[:, 0] == 1.0))
 
 
+# A change is local: most elements and vertices keep their index, and all that is attached to
+# it. Model.rebuild copies the prefix of each array and recomputes only the rows that may
+# differ, which gives, bit for bit, what recomputing every row gives.
+
+def _prefix(old: np.ndarray, count: int) -> np.ndarray:
+    """A new array of ``count`` rows whose first rows are those of ``old`` (the rest, past
+    the end of ``old``, uninitialised: the caller fills them)."""
+    out = np.empty((count,) + old.shape[1:], dtype=old.dtype)
+    k = min(len(old), count)
+    out[:k] = old[:k]
+    return out
+
+
+def _take(old: np.ndarray, index: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``old[index]``, given ``rows``, every row where ``index`` is not the identity."""
+    out = _prefix(old, len(index))
+    out[rows] = old[index[rows]]
+    return out
+
+
+def _reparented(parent: np.ndarray, count_before: int) -> np.ndarray:
+    """Elements after a change whose parent is not the element of the same index before:
+    the added or renumbered ones and those past the old end."""
+    k = min(count_before, len(parent))
+    return np.concatenate([np.flatnonzero(parent[:k] != np.arange(k)), np.arange(k, len(parent))])
+
+
+def _touched_vertices(change) -> np.ndarray:
+    """Vertices after a change that are not simply the vertex of the same index before:
+    created, moved, renumbered, or interpolated from others. Sorted."""
+    sources, weights = change.vertex_sources, change.vertex_weights
+    itself = (sources[:, 0] == np.arange(len(sources))) & (weights[:, 0] == 1.0)
+    for k in range(1, weights.shape[1]):  # column by column: far faster than .all(axis=1) on (N, K)
+        itself &= weights[:, k] == 0.0
+    moved = change.moved_vertices[change.moved_vertices < change.vertex_count_after]
+    return np.union1d(np.flatnonzero(~itself), np.concatenate([change.new_vertices, moved]))
+
+
+def _interpolated(old: np.ndarray, change, touched: np.ndarray) -> np.ndarray:
+    """Vertex attribute ``old`` (N_A, 3) after ``change``: the weighted sum of its sources,
+    computed where it may differ from ``old`` (``touched``) and rounded to ``old``'s type."""
+    out = _prefix(old, change.vertex_count_after)
+    out[touched] = np.einsum("vk,vkj->vj", change.vertex_weights[touched], old[change.vertex_sources[touched]])
+    return out
+
+
+def _forces_after(old: np.ndarray, change, touched: np.ndarray) -> np.ndarray:
+    """External forces after ``change``, from those before (``old``, (N_A, 3)): kept on the
+    vertices of before that did not move, zero on the others (``touched`` holds every vertex
+    that is not simply the vertex of the same index before)."""
+    forces = _prefix(old, change.vertex_count_after)
+    forces[touched] = 0.0
+    new_or_moved = np.isin(touched, change.new_vertices) | np.isin(touched, change.moved_vertices)
+    kept = touched[~new_or_moved & (change.vertex_weights[touched, 0] == 1.0)]  # e.g. renumbered
+    forces[kept] = old[change.vertex_sources[kept, 0]]
+    return forces
+
+
 class State:
     """Time-varying data of a model (Newton's names).
 
@@ -183,6 +241,19 @@ class State:
         self.particle_qd = wp.clone(model.particle_qd)
         self.particle_f = wp.zeros(model.particle_count, dtype=wp.vec3, device=model.device)
         self.tet_rotation = wp.full(model.tet_count, wp.quat_identity(), dtype=wp.quat, device=model.device)
+
+    @classmethod
+    def of(cls, model: "Model", particle_q: np.ndarray, particle_qd: np.ndarray, particle_f: np.ndarray,
+           tet_rotation: np.ndarray) -> "State":
+        """A State of ``model`` holding these host arrays ((N, 3), (N, 3), (N, 3), (M, 4)),
+        uploaded once (no initial values to overwrite)."""
+        state = cls.__new__(cls)
+        d = model.device
+        state.particle_q = wp.array(particle_q, dtype=wp.vec3, device=d)
+        state.particle_qd = wp.array(particle_qd, dtype=wp.vec3, device=d)
+        state.particle_f = wp.array(particle_f, dtype=wp.vec3, device=d)
+        state.tet_rotation = wp.array(tet_rotation, dtype=wp.quat, device=d)
+        return state
 
     def clear_forces(self) -> None:
         """Set the external forces to zero."""
@@ -316,16 +387,15 @@ class Model:
         if change.vertex_count_after != mesh.vertex_count or change.element_count_after != mesh.tet_count:
             raise ModelError("rebuild: the change does not lead to this mesh")
         parent, changed = change.element_parent, change.element_rest_changed
+        reparented, touched = _reparented(parent, self.tet_count), _touched_vertices(change)
         rest = mesh.vertices.astype(np.float32).astype(np.float64)
-        poses = self.tet_poses.numpy()[parent]
-        volume = self.tet_rest_volume.numpy()[parent].astype(np.float64)
+        poses = _take(self.tet_poses.numpy(), parent, reparented)
+        volume = _take(self.tet_rest_volume.numpy(), parent, reparented).astype(np.float64)
         if changed.any():
             poses[changed], volume[changed] = _rest_frames(rest, mesh.tets[changed])
-        rho, E, nu = (a.numpy()[parent].astype(np.float64)
+        rho, E, nu = (_take(a.numpy(), parent, reparented).astype(np.float64)
                       for a in (self.tet_density, self.tet_youngs_modulus, self.tet_poisson_ratio))
-        sources, weights = change.vertex_sources, change.vertex_weights
-        old_fixed = self.particle_fixed.numpy()
-        fixed_mask = np.all((old_fixed[sources] == 1) | (weights == 0.0), axis=1).astype(np.int32)
+        fixed_mask = self._fixed_after(change, touched)
 
         model = Model.__new__(Model)
         model.device = self.device
@@ -335,25 +405,27 @@ class Model:
                       self._attachments_after(change))
         if state is None:
             return model, None
-        new = model.state()
+        return model, State.of(model, _interpolated(state.particle_q.numpy(), change, touched),
+                               _interpolated(state.particle_qd.numpy(), change, touched),
+                               _forces_after(state.particle_f.numpy(), change, touched),
+                               _take(state.tet_rotation.numpy(), parent, reparented))
 
-        def gather(array):
-            return np.einsum("vk,vkj->vj", weights, array.numpy()[sources])
-
-        new.particle_q.assign(gather(state.particle_q).astype(np.float32))
-        new.particle_qd.assign(gather(state.particle_qd).astype(np.float32))
-        kept = _untouched_vertices(change)
-        forces = np.zeros((mesh.vertex_count, 3), dtype=np.float32)
-        forces[kept] = state.particle_f.numpy()[sources[kept, 0]]
-        new.particle_f.assign(forces)
-        new.tet_rotation.assign(state.tet_rotation.numpy()[parent])
-        return model, new
+    def _fixed_after(self, change, touched: np.ndarray) -> np.ndarray:
+        """(N_B,) int32: a vertex after ``change`` is fixed when all the vertices it is
+        interpolated from are (a vertex untouched by the change: when it was)."""
+        old = self.particle_fixed.numpy() == 1
+        fixed = _prefix(old.astype(np.int32), change.vertex_count_after)
+        sources, weights = change.vertex_sources[touched], change.vertex_weights[touched]
+        fixed[touched] = np.all(old[sources] | (weights == 0.0), axis=1)
+        return fixed
 
     def _attachments_after(self, change) -> Attachments:
         """This model's attachments, re-indexed to the vertices after ``change`` (an
         attachment on a deleted vertex loses that weight)."""
         indices = self.attachment_indices.numpy().astype(np.int64)
         weights = self.attachment_weights.numpy().astype(np.float64)
+        if not len(indices):  # nothing to re-index: skip the pass over every vertex
+            return Attachments(indices, weights, self.attachment_stiffness.numpy())
         kept = _untouched_vertices(change)
         old_to_new = np.full(change.vertex_count_before, -1, dtype=np.int64)
         old_to_new[change.vertex_sources[kept, 0]] = kept

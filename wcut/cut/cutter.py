@@ -52,11 +52,16 @@ TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 #: Distance (relative to the mean rest edge length) within which a vertex is on the surface.
 ON_SURFACE_TOL = 1e-6
 
-#: A piece the cut would free with at most this many elements and less than ``CRUMB_VOLUME``
-#: times the volume of a regular tetrahedron of the mean edge length stays attached: such
-#: crumbs are flat elements lying in the surface, and alone they would be unstable.
-CRUMB_ELEMENTS = 8
+#: A piece the cut would free with at most ``CRUMB_ELEMENTS`` elements, less than
+#: ``CRUMB_VOLUME`` times the volume of a regular tetrahedron of the mean edge length, and only
+#: slivers (quality below ``CRUMB_QUALITY`` times a regular tetrahedron's) stays attached: such
+#: crumbs are flat elements lying in the surface, and alone they would be unstable. (A small
+#: corner cut off by a plane is made of well-shaped elements: it comes off.)
+CRUMB_ELEMENTS = 64
 CRUMB_VOLUME = 0.5
+CRUMB_QUALITY = 0.1
+#: volume / longest edge^3 of the regular tetrahedron
+REGULAR_QUALITY = 1.0 / (6.0 * np.sqrt(2.0))
 
 #: A 2-3 flip must keep its elements' quality above this fraction of the worst quality of the
 #: two it replaces; else the face is split instead (a flip can make slivers).
@@ -153,6 +158,9 @@ class Cutter:
         #: vertices this cutter inserted by 1-4 splits: one on the surface serves again as the
         #: split vertex of its element's pieces when a later cut reaches them (thesis 5.1.1)
         self.split_vertices: set[int] = set()
+        #: vertices on the faces this cutter opened, and their copies: the lips of the wound
+        #: coincide at rest, so snapping must not slide one of them off its plane alone
+        self.wound_vertices: set[int] = set()
         #: the increments of the progressive cut so far (vertices, triangles)
         self._swept: list[tuple[np.ndarray, np.ndarray]] = []
         self._rest = False
@@ -315,7 +323,8 @@ class Cutter:
             if v in snapped or other in snapped or v in sampling.on:
                 continue
             try:
-                move_vertex(self.topology, v, [v, other], [1.0 - s, s], feature_angle=FEATURE_ANGLE)
+                move_vertex(self.topology, v, [v, other], [1.0 - s, s],
+                            feature_angle=0.0 if v in self.wound_vertices else FEATURE_ANGLE)
             except TopologyError as exc:
                 stats.refused.append(str(exc))
                 continue
@@ -530,15 +539,16 @@ class Cutter:
             unsew_face(topo, key)
         stats.unsewn_faces += len(opened)
         for v in sorted({v for key in opened for v in key}):
-            stats.duplicated_vertices += len(duplicate_vertex(topo, v))
+            copies = duplicate_vertex(topo, v)
+            stats.duplicated_vertices += len(copies)
+            self.wound_vertices.update(copies, (v,))
         sew_unopened(topo)
 
     def _keep_attached(self, opened: list) -> list:
-        """``opened`` less the faces that would cut a crumb loose: a piece of at most
-        ``CRUMB_ELEMENTS`` elements and less than ``CRUMB_VOLUME`` times the volume of a regular
-        tetrahedron of the mean edge length (flat elements lying in the surface, which get all
-        their faces on the cut). Its largest opened face stays sewn, so the crumb stays with
-        the neighbour across it; that bridges nothing, its other faces being open."""
+        """``opened`` less the faces that would cut a crumb loose (see ``CRUMB_ELEMENTS``): flat
+        elements lying in the surface get all their faces on the cut. The crumb's largest
+        opened face stays sewn, so it stays with the neighbour across it; that bridges
+        nothing, its other faces being open."""
         topo = self.topology
         x = topo.rest_positions
         opened_set = set(opened)
@@ -547,8 +557,17 @@ class Cutter:
         def closed(face):
             return face in opened_set or face in topo.unsewn or len(topo.face_tets[face]) == 1
 
-        def piece(start):
-            """The elements reachable from ``start`` through sewn faces, if few; else None."""
+        sliver_quality = CRUMB_QUALITY * REGULAR_QUALITY
+        quality: dict[int, float] = {}
+
+        def sliver(t):
+            if t not in quality:
+                quality[t] = float(tet_qualities(x[topo.tets[t]][None])[0])
+            return quality[t] < sliver_quality
+
+        def crumb_from(start):
+            """The elements reachable from ``start`` through sewn faces if they are few slivers
+            of small total volume; else None (the search stops at the first good element)."""
             seen, stack = {start}, [start]
             while stack:
                 tet = topo.tet(stack.pop())
@@ -558,15 +577,15 @@ class Cutter:
                         continue
                     for t in topo.face_tets[face]:
                         if t not in seen:
-                            if len(seen) == CRUMB_ELEMENTS:
+                            if len(seen) == CRUMB_ELEMENTS or not sliver(t):
                                 return None
                             seen.add(t)
                             stack.append(t)
-            return seen
+            return seen if sum(topo.rest_volume(t) for t in seen) < crumb_volume else None
 
         for start in sorted({t for key in opened for t in topo.face_tets[key]}):
-            crumb = piece(start)
-            if crumb is None or sum(topo.rest_volume(t) for t in crumb) >= crumb_volume:
+            crumb = crumb_from(start) if sliver(start) else None
+            if crumb is None:
                 continue
             faces = {face_key(*[topo.tet(t)[i] for i in local]) for t in crumb for local in TET_FACES.tolist()}
             mine = sorted(f for f in faces if f in opened_set)

@@ -14,6 +14,18 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def _compact_index(base_slots: np.ndarray):
+    """The map from a slot live at the start of a change to its index among those slots
+    (``base_slots`` ascending): the identity when no slot was free, else a lookup table.
+    Either is a gather, cheaper than a binary search of every element."""
+    count = len(base_slots)
+    if count == 0 or base_slots[-1] == count - 1:
+        return lambda slots: np.asarray(slots, dtype=np.int64)
+    table = np.full(int(base_slots[-1]) + 1, -1, dtype=np.int64)
+    table[base_slots] = np.arange(count)
+    return lambda slots: table[np.asarray(slots, dtype=np.int64)]
+
+
 @dataclass(frozen=True)
 class TopologyChange:
     """How mesh B (after) derives from mesh A (before); indices are compact mesh indices.
@@ -59,6 +71,7 @@ class TopologyChange:
     @classmethod
     def from_journal(cls, journal, topo) -> "TopologyChange":
         base_slots = journal.base_slots
+        index = _compact_index(base_slots)
         slots = topo.live_tets()
         origin = np.arange(topo.slot_count, dtype=np.int64)  # slot -> base slot it lies in
         added_mask = np.zeros(topo.slot_count, dtype=bool)
@@ -69,10 +82,10 @@ class TopologyChange:
             added_mask[new_slots] = True
         if journal.reshaped:
             reshaped[list(journal.reshaped)] = True
-        element_parent = np.searchsorted(base_slots, origin[slots])
+        element_parent = index(origin[slots])
         rest_changed = added_mask[slots] | reshaped[slots]
         added = np.flatnonzero(added_mask[slots])
-        removed = np.searchsorted(base_slots, np.array(sorted(journal.removed_base), dtype=np.int64))
+        removed = index(np.array(sorted(journal.removed_base), dtype=np.int64))
 
         v_a, v_b = journal.base_vertex_count, topo.vertex_count
         width = max([4] + [len(e) for e in journal.expression.values()])
@@ -81,14 +94,14 @@ class TopologyChange:
         weights = np.zeros((v_b, width))
         weights[:, 0] = 1.0
         parent_element = np.full(v_b, -1, dtype=np.int64)
-        for v, expr in journal.expression.items():
-            ids = list(expr)
-            sources[v, : len(ids)] = ids
-            sources[v, len(ids):] = ids[0]
-            weights[v] = 0.0
-            weights[v, : len(ids)] = list(expr.values())
-            if v in journal.vertex_origin:
-                parent_element[v] = np.searchsorted(base_slots, journal.vertex_origin[v])
+        if journal.expression:  # one row per expressed vertex, padded: its first source, weight 0
+            rows = list(journal.expression)
+            exprs = list(journal.expression.values())
+            sources[rows] = [list(e) + [next(iter(e))] * (width - len(e)) for e in exprs]
+            weights[rows] = [list(e.values()) + [0.0] * (width - len(e)) for e in exprs]
+        if journal.vertex_origin:
+            created = [v for v in journal.expression if v in journal.vertex_origin]
+            parent_element[created] = index(np.array([journal.vertex_origin[v] for v in created], dtype=np.int64))
         moved = np.array(sorted(v for v in journal.expression if v < v_a), dtype=np.int64)
         return cls(
             vertex_count_before=v_a, vertex_count_after=v_b,

@@ -26,6 +26,8 @@ index is stable while it lives and the cost of a change follows the elements it 
 
 from __future__ import annotations
 
+import struct
+
 import numpy as np
 
 from ..errors import WcutError
@@ -61,6 +63,28 @@ def signed_volume(p0, p1, p2, p3) -> float:
     return float(ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)) / 6.0
 
 
+def point_tuples(points) -> tuple[list[tuple[float, float, float]], list[tuple[float, float, float]]]:
+    """(N, 3) points as tuples of Python floats: as they are (float64), and rounded to float32
+    (what the simulation sees). The operators check a handful of elements per call, where
+    plain float arithmetic costs a fraction of numpy's per-call overhead."""
+    rows = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    as_is = [tuple(p) for p in rows.tolist()]
+    rounded = [tuple(p) for p in rows.astype(np.float32).astype(np.float64).tolist()]
+    return as_is, rounded
+
+
+_FLOAT32_XYZ = struct.Struct("3f")
+
+
+def rounded32(p) -> tuple[float, float, float]:
+    """Point (x, y, z) rounded to float32 and back, as ``astype(np.float32)`` rounds it: struct
+    packs with the same C conversion (to nearest, ties to even), without numpy's overhead."""
+    try:
+        return _FLOAT32_XYZ.unpack(_FLOAT32_XYZ.pack(*p))
+    except OverflowError:  # some Pythons refuse to pack beyond float32's range; numpy gives inf
+        return point_tuples(p)[1][0]
+
+
 class TetTopology:
     """A tetrahedral mesh with local adjacency that stays correct through every change.
 
@@ -74,6 +98,14 @@ class TetTopology:
     configuration, every face in at most two elements, adjacency equal to the adjacency
     rebuilt from the elements, total rest volume unchanged (only boundary operators that say
     so change it).
+
+    Besides ``vertex_data``, the rest positions are kept as Python float tuples,
+    ``rest_tuples`` and their float32-rounded values ``rest_tuples32`` (read them, never
+    write them), for the operators' arithmetic on a few elements at a time. Rest positions
+    change only through :meth:`add_vertex`, :meth:`set_vertex` and
+    :meth:`drop_unused_vertices`, which keep both in step (:attr:`rest_positions` is a
+    read-only view); code that writes ``vertex_data[:, REST]`` itself must call
+    :meth:`sync_rest_tuples` afterwards.
     """
 
     def __init__(self, mesh: TetMesh, positions=None, velocities=None):
@@ -85,6 +117,7 @@ class TetTopology:
             data[:n, VELOCITY] = np.asarray(velocities, float)
         self.vertex_data = data
         self.vertex_count = n
+        self.sync_rest_tuples()
         m = mesh.tet_count
         self.tets = np.zeros((max(2 * m, 16), 4), dtype=np.int64)
         self.tets[:m] = mesh.tets
@@ -108,12 +141,17 @@ class TetTopology:
 
     def live_tets(self) -> np.ndarray:
         """Slots of the live elements, ascending (the order of :meth:`to_mesh`)."""
+        if not self._free:  # no freed slot waits for reuse: every slot below slot_count lives
+            return np.arange(self.slot_count)
         return np.flatnonzero(self.alive[: self.slot_count])
 
     @property
     def rest_positions(self) -> np.ndarray:
-        """(N, 3) rest positions (m), a view."""
-        return self.vertex_data[: self.vertex_count, REST]
+        """(N, 3) rest positions (m), a read-only view (the operators change them, keeping
+        ``rest_tuples`` in step)."""
+        view = self.vertex_data[: self.vertex_count, REST]
+        view.flags.writeable = False
+        return view
 
     @property
     def positions(self) -> np.ndarray:
@@ -130,7 +168,8 @@ class TetTopology:
 
     def rest_volume(self, t: int) -> float:
         """Signed rest volume (m^3) of element slot t."""
-        return signed_volume(*self.vertex_data[self.tets[t], REST].tolist())
+        rest = self.rest_tuples
+        return signed_volume(*[rest[v] for v in self.tets[t].tolist()])
 
     def neighbors(self, t: int, key: tuple[int, int, int]) -> list[int]:
         """The other element across face ``key`` of element t ([] on the boundary or unsewn)."""
@@ -204,8 +243,8 @@ class TetTopology:
             polygon.pop()
         if len(tets) != len(around):
             raise TopologyError(f"edge ({a}, {b}): its elements form more than one fan")
-        x = self.vertex_data[[a, b, polygon[0], polygon[1]], REST].tolist()
-        if signed_volume(*x) < 0:
+        rest = self.rest_tuples
+        if signed_volume(rest[a], rest[b], rest[polygon[0]], rest[polygon[1]]) < 0:
             tets.reverse()
             polygon.reverse()
             if closed:  # keep polygon[i], polygon[i+1] the corners of tets[i]
@@ -280,29 +319,38 @@ class TetTopology:
     def to_mesh(self, name: str | None = None) -> TetMesh:
         """The live elements as a :class:`TetMesh` (elements in slot order, vertices as
         numbered here), without re-validating: the operators keep the mesh valid."""
-        return TetMesh.trusted(self.rest_positions.copy(), self.tets[self.live_tets()].copy(),
-                               name=name or self.name)
+        # Without freed slots the live elements are the prefix: one copy, no gather.
+        tets = self.tets[: self.slot_count].copy() if not self._free else self.tets[self.live_tets()]
+        return TetMesh.trusted(self.rest_positions.copy(), tets, name=name or self.name)
 
     # ------------------------------------------------------- low-level editing
-    def _link(self, t: int, tet) -> None:
+    def _link(self, t: int, tet: list[int]) -> None:
+        """Enter element t, with vertices ``tet``, in the adjacency."""
+        vertex_tets, face_tets = self.vertex_tets, self.face_tets
         for v in tet:
-            self.vertex_tets[v].add(t)
-        for i, j, k in TET_FACES.tolist():
-            self.face_tets.setdefault(face_key(tet[i], tet[j], tet[k]), []).append(t)
+            vertex_tets[v].add(t)
+        for key in _face_keys(tet):
+            owners = face_tets.get(key)
+            if owners is None:
+                face_tets[key] = [t]
+            else:
+                owners.append(t)
 
     def _unlink(self, t: int) -> None:
+        """Remove element t from the adjacency; a face left with fewer than two elements is
+        no longer unsewn."""
         tet = self.tets[t].tolist()
+        vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn
         for v in tet:
-            self.vertex_tets[v].discard(t)
-        for i, j, k in TET_FACES.tolist():
-            key = face_key(tet[i], tet[j], tet[k])
-            owners = self.face_tets[key]
+            vertex_tets[v].discard(t)
+        for key in _face_keys(tet):
+            owners = face_tets[key]
             owners.remove(t)
             if not owners:
-                del self.face_tets[key]
-                self.unsewn.discard(key)
+                del face_tets[key]
+                unsewn.discard(key)
             elif len(owners) == 1:
-                self.unsewn.discard(key)
+                unsewn.discard(key)
 
     def _new_slot(self) -> int:
         if self._free:
@@ -349,6 +397,9 @@ class TetTopology:
         self.vertex_data[v] = weights @ self.vertex_data[parents]
         self.vertex_count += 1
         self.vertex_tets.append(set())
+        rest, rest32 = self._rest_tuples_of(v)
+        self.rest_tuples.append(rest)
+        self.rest_tuples32.append(rest32)
         if self._journal:
             self._journal.vertex_from(v, parents, weights, origin_tet)
         return v
@@ -359,12 +410,30 @@ class TetTopology:
         if self._journal:
             self._journal.vertex_from(v, parents, weights, -1)
         self.vertex_data[v] = weights @ self.vertex_data[parents]
+        self.rest_tuples[v], self.rest_tuples32[v] = self._rest_tuples_of(v)
+
+    def sync_rest_tuples(self) -> None:
+        """Rebuild ``rest_tuples`` and ``rest_tuples32`` from ``vertex_data`` (O(N)): for code
+        that wrote rest positions into ``vertex_data`` itself."""
+        self.rest_tuples, self.rest_tuples32 = point_tuples(self.vertex_data[: self.vertex_count, REST])
+
+    def _rest_tuples_of(self, v: int) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """Vertex v's rest position as a float tuple, and rounded to float32."""
+        rest = tuple(self.vertex_data[v, REST].tolist())
+        return rest, rounded32(rest)
 
     def retarget(self, t: int, old: int, new: int) -> None:
-        """Replace vertex ``old`` by ``new`` in element t (same geometry: a duplicate)."""
+        """Replace vertex ``old`` by ``new`` in element t (same geometry: a duplicate).
+
+        Unlinking and linking again leaves the adjacency as it would be had t been removed and
+        added (t last in the element list of each of its faces), which later operators'
+        choices depend on."""
         self._unlink(t)
-        self.tets[t][self.tets[t] == old] = new
-        self._link(t, self.tets[t].tolist())
+        tet = self.tets[t].tolist()
+        i = tet.index(old)
+        tet[i] = new
+        self.tets[t, i] = new
+        self._link(t, tet)
 
     def drop_unused_vertices(self) -> int:
         """Remove vertices no element uses (after elements were deleted) and renumber the
@@ -382,7 +451,10 @@ class TetTopology:
         self.tets[live] = remap[self.tets[live]]
         self.vertex_data[: len(kept)] = self.vertex_data[kept]
         self.vertex_count = len(kept)
-        self.vertex_tets = [self.vertex_tets[v] for v in kept.tolist()]
+        order = kept.tolist()
+        self.vertex_tets = [self.vertex_tets[v] for v in order]
+        self.rest_tuples = [self.rest_tuples[v] for v in order]
+        self.rest_tuples32 = [self.rest_tuples32[v] for v in order]
         self.face_tets = {face_key(*remap[list(k)].tolist()): owners for k, owners in self.face_tets.items()}
         self.unsewn = {face_key(*remap[list(k)].tolist()) for k in self.unsewn}
         if self._journal:
@@ -404,6 +476,12 @@ class TetTopology:
         if journal is None:
             raise TopologyError("end_change() without begin_change()")
         return TopologyChange.from_journal(journal, self)
+
+
+def _face_keys(tet: list[int]) -> tuple[tuple[int, int, int], ...]:
+    """The keys of the four faces of an element: the triples of its sorted vertices."""
+    s0, s1, s2, s3 = sorted(tet)
+    return (s1, s2, s3), (s0, s2, s3), (s0, s1, s3), (s0, s1, s2)
 
 
 class _Journal:
@@ -454,8 +532,9 @@ def _closest_on_triangles(p, a, b, c) -> tuple[np.ndarray, np.ndarray]:
     d00, d01, d11 = (np.einsum("...i,...i->...", u, v) for u, v in ((ab, ab), (ab, ac), (ac, ac)))
     d20, d21 = np.einsum("...i,...i->...", ap, ab), np.einsum("...i,...i->...", ap, ac)
     det = d00 * d11 - d01 * d01
-    v = (d11 * d20 - d01 * d21) / det
-    w = (d00 * d21 - d01 * d20) / det
+    with np.errstate(divide="ignore", invalid="ignore"):  # a sliver triangle: its edges decide
+        v = (d11 * d20 - d01 * d21) / det
+        w = (d00 * d21 - d01 * d20) / det
     bary = np.stack([1.0 - v - w, v, w], axis=-1)
     inside = (bary >= 0.0).all(axis=-1)
     corners = np.stack((a, b, c))

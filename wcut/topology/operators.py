@@ -6,6 +6,9 @@ positively oriented with quality (volume / longest edge^3, rest configuration) a
 as it was, so the cutter can fall back (to snapping, to a face split, to a bisection).
 New vertices carry rest position, position and velocity by barycentric interpolation.
 
+An operator checks a handful of elements: it computes in plain Python floats on the
+topology's ``rest_tuples``, where numpy's per-call overhead would cost more than the arithmetic.
+
 Except the general flip of a boundary edge (which may, when allowed, smooth the boundary),
 every operator conserves the total rest volume exactly up to rounding.
 """
@@ -13,41 +16,105 @@ every operator conserves the total rest volume exactly up to rounding.
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 
-from ..mesh import DEGENERATE_TOL, TET_FACES
-from .mesh import REST, TetTopology, TopologyError, face_key, signed_volume
+from ..mesh import DEGENERATE_TOL
+from .mesh import REST, TetTopology, TopologyError, face_key, rounded32, signed_volume
+
+#: Up to this many elements :func:`tet_qualities` loops in plain floats: numpy's per-call
+#: overhead (some 40 array operations) exceeds the arithmetic of a few elements.
+SMALL_BATCH = 16
+
+#: The faces of an element (as in ``wcut.mesh.TET_FACES``) as tuples, for plain-Python loops.
+_FACES = ((1, 2, 3), (0, 3, 2), (0, 1, 3), (0, 2, 1))
+
+
+def _quality(p0, p1, p2, p3) -> float:
+    """Quality (volume / longest edge^3) of one tetrahedron, corners as (x, y, z) floats.
+
+    The arithmetic of :func:`tet_qualities`, operation for operation, so the two agree to the
+    last bit. Four coincident corners give NaN (0/0), as numpy does."""
+    x0, y0, z0 = p0
+    x1, y1, z1 = p1
+    x2, y2, z2 = p2
+    x3, y3, z3 = p3
+    ax, ay, az = x1 - x0, y1 - y0, z1 - z0
+    bx, by, bz = x2 - x0, y2 - y0, z2 - z0
+    cx, cy, cz = x3 - x0, y3 - y0, z3 - z0
+    volume = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)) / 6.0
+    dx, dy, dz = x2 - x1, y2 - y1, z2 - z1
+    ex, ey, ez = x3 - x1, y3 - y1, z3 - z1
+    fx, fy, fz = x3 - x2, y3 - y2, z3 - z2
+    longest2 = max(ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz, cx * cx + cy * cy + cz * cz,
+                   dx * dx + dy * dy + dz * dz, ex * ex + ey * ey + ez * ez, fx * fx + fy * fy + fz * fz)
+    if longest2 == 0.0:
+        return math.nan
+    return volume / (longest2 * math.sqrt(longest2))
 
 
 def tet_qualities(points: np.ndarray) -> np.ndarray:
-    """Quality (volume / longest edge^3) of (M, 4, 3) tetrahedra."""
-    d1, d2, d3 = (points[:, i] - points[:, 0] for i in (1, 2, 3))
-    volume = np.einsum("ij,ij->i", np.cross(d1, d2), d3) / 6.0
-    diff = points[:, :, None, :] - points[:, None, :, :]
-    longest = np.sqrt((diff * diff).sum(axis=3).max(axis=(1, 2)))
-    return volume / longest**3
+    """Quality (volume / longest edge^3) of (M, 4, 3) tetrahedra.
+
+    Written component by component, in the order of :func:`_quality`, so that a small float64
+    batch can be computed in plain floats (faster) with the same result to the last bit."""
+    points = np.asarray(points)
+    if points.dtype == np.float64 and len(points) <= SMALL_BATCH:
+        return np.array([_quality(*tet) for tet in points.tolist()], dtype=np.float64).reshape(len(points))
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]  # (M, 4) each
+    ax, ay, az = x[:, 1] - x[:, 0], y[:, 1] - y[:, 0], z[:, 1] - z[:, 0]
+    bx, by, bz = x[:, 2] - x[:, 0], y[:, 2] - y[:, 0], z[:, 2] - z[:, 0]
+    cx, cy, cz = x[:, 3] - x[:, 0], y[:, 3] - y[:, 0], z[:, 3] - z[:, 0]
+    volume = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)) / 6.0
+    dx, dy, dz = x[:, 2] - x[:, 1], y[:, 2] - y[:, 1], z[:, 2] - z[:, 1]
+    ex, ey, ez = x[:, 3] - x[:, 1], y[:, 3] - y[:, 1], z[:, 3] - z[:, 1]
+    fx, fy, fz = x[:, 3] - x[:, 2], y[:, 3] - y[:, 2], z[:, 3] - z[:, 2]
+    longest2 = np.maximum.reduce([ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz,
+                                  cx * cx + cy * cy + cz * cz, dx * dx + dy * dy + dz * dz,
+                                  ex * ex + ey * ey + ez * ez, fx * fx + fy * fy + fz * fz])
+    return volume / (longest2 * np.sqrt(longest2))
+
+
+def _smaller(a: float, b: float) -> float:
+    """min(a, b) as ``np.minimum``: NaN when either is NaN."""
+    return a if a < b or a != a else b
 
 
 def _check(topo: TetTopology, tets: list[list[int]], what: str, extra: dict | None = None) -> None:
     """Refuse unless every tetrahedron of ``tets`` is well shaped in the rest configuration.
 
-    ``extra`` maps a vertex not yet in the mesh (index -1, -2, ...) to its rest position."""
-    rest = topo.vertex_data[:, REST]
-    points = np.array([[extra[v] if v < 0 else rest[v] for v in tet] for tet in tets])
-    # The simulation sees float32 rest positions: the element must survive that rounding.
-    q = np.minimum(tet_qualities(points), tet_qualities(points.astype(np.float32).astype(np.float64)))
-    worst = int(np.argmin(q))
-    if not q[worst] > DEGENERATE_TOL:
-        state = "inverted" if q[worst] < 0 else "flat"
-        raise TopologyError(f"{what}: element {tets[worst]} would be {state} (quality {q[worst]:.2e})")
+    ``extra`` maps a vertex not yet in the mesh (index -1, -2, ...) to its rest position.
+    The worst element is the first of smallest quality, or the first NaN (as ``np.argmin``)."""
+    rest, rest32 = topo.rest_tuples, topo.rest_tuples32
+    extra64, extra32 = {}, {}
+    for v, p in (extra or {}).items():
+        extra64[v] = tuple(np.asarray(p, dtype=np.float64).tolist())
+        extra32[v] = rounded32(extra64[v])
+    worst, worst_q = 0, math.inf
+    for i, tet in enumerate(tets):
+        # The simulation sees float32 rest positions: the element must survive that rounding.
+        q = _smaller(_quality(*[extra64[v] if v < 0 else rest[v] for v in tet]),
+                     _quality(*[extra32[v] if v < 0 else rest32[v] for v in tet]))
+        if q != q:
+            worst, worst_q = i, q
+            break
+        if q < worst_q:
+            worst, worst_q = i, q
+    if not worst_q > DEGENERATE_TOL:
+        state = "inverted" if worst_q < 0 else "flat"
+        raise TopologyError(f"{what}: element {tets[worst]} would be {state} (quality {worst_q:.2e})")
 
 
 def _weights(weights, count: int, what: str) -> np.ndarray:
     """Barycentric weights: ``count`` finite numbers summing to 1."""
     w = np.asarray(weights, dtype=np.float64).reshape(-1)
-    if len(w) != count or not np.isfinite(w).all() or abs(w.sum() - 1.0) > 1e-9:
-        raise TopologyError(f"{what}: expected {count} finite barycentric weights summing to 1, got {w.tolist()}")
+    values = w.tolist()
+    total = 0.0
+    for x in values:  # plain left-to-right rounding (Python 3.12's sum() compensates)
+        total += x
+    if len(values) != count or not all(map(math.isfinite, values)) or abs(total - 1.0) > 1e-9:
+        raise TopologyError(f"{what}: expected {count} finite barycentric weights summing to 1, got {values}")
     return w
 
 
@@ -57,14 +124,50 @@ def _point(topo: TetTopology, parents, weights) -> np.ndarray:
 
 def _containing(topo: TetTopology, removed: list[int], added: list[list[int]]) -> list[int]:
     """For each new element, the removed element that contains its centroid (the one whose
-    smallest barycentric coordinate of it is largest): its parent in the change record."""
-    rest = topo.vertex_data[:, REST]
-    centroids = rest[np.asarray(added)].mean(axis=1)
-    corners = rest[topo.tets[removed]]                       # (R, 4, 3)
-    Dm = (corners[:, :3] - corners[:, 3:]).transpose(0, 2, 1)
-    xi = np.einsum("rij,arj->ari", np.linalg.inv(Dm), centroids[:, None, :] - corners[None, :, 3])
-    bary_min = np.minimum(xi.min(axis=2), 1.0 - xi.sum(axis=2))   # (A, R)
-    return [removed[i] for i in np.argmax(bary_min, axis=1)]
+    smallest barycentric coordinate of it is largest, the first such): its parent in the
+    change record.
+
+    Barycentric coordinates by Cramer's rule in plain floats. They may differ in the last bits
+    from a matrix inverse's, which can only matter where a centroid lies on a face two removed
+    elements share, and then either is a right parent."""
+    rest = topo.rest_tuples
+    frames = [_barycentric_frame(*[rest[v] for v in topo.tets[t].tolist()]) for t in removed]
+    parents = []
+    for tet in added:
+        p0, p1, p2, p3 = (rest[v] for v in tet)
+        centroid = ((p0[0] + p1[0] + p2[0] + p3[0]) / 4.0, (p0[1] + p1[1] + p2[1] + p3[1]) / 4.0,
+                    (p0[2] + p1[2] + p2[2] + p3[2]) / 4.0)
+        best, best_min = 0, -math.inf
+        for i, frame in enumerate(frames):
+            smallest = _smallest_barycentric(frame, centroid)
+            if smallest > best_min:
+                best, best_min = i, smallest
+        parents.append(removed[best])
+    return parents
+
+
+def _barycentric_frame(c0, c1, c2, c3):
+    """What :func:`_smallest_barycentric` needs of the element c0 c1 c2 c3: the rows of
+    ``det(Dm) Dm^{-1}`` (cross products of the columns of ``Dm = [c0-c3 | c1-c3 | c2-c3]``),
+    ``det(Dm)`` and c3."""
+    a = (c0[0] - c3[0], c0[1] - c3[1], c0[2] - c3[2])
+    b = (c1[0] - c3[0], c1[1] - c3[1], c1[2] - c3[2])
+    c = (c2[0] - c3[0], c2[1] - c3[1], c2[2] - c3[2])
+    bc = (b[1] * c[2] - b[2] * c[1], b[2] * c[0] - b[0] * c[2], b[0] * c[1] - b[1] * c[0])
+    ca = (c[1] * a[2] - c[2] * a[1], c[2] * a[0] - c[0] * a[2], c[0] * a[1] - c[1] * a[0])
+    ab = (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+    det = a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2]
+    return bc, ca, ab, det, c3
+
+
+def _smallest_barycentric(frame, p) -> float:
+    """The smallest barycentric coordinate of point p in the element of ``frame``."""
+    r0, r1, r2, det, c3 = frame
+    px, py, pz = p[0] - c3[0], p[1] - c3[1], p[2] - c3[2]
+    x0 = (r0[0] * px + r0[1] * py + r0[2] * pz) / det
+    x1 = (r1[0] * px + r1[1] * py + r1[2] * pz) / det
+    x2 = (r2[0] * px + r2[1] * py + r2[2] * pz) / det
+    return min(x0, x1, x2, 1.0 - (x0 + x1 + x2))
 
 
 def _substitute(tet: list[int], old: int, new: int) -> list[int]:
@@ -108,7 +211,7 @@ def flip23(topo: TetTopology, key: tuple[int, int, int]) -> list[int]:
     d = next(v for v in topo.tet(t0) if v not in key)
     e = next(v for v in topo.tet(t1) if v not in key)
     a, b, c = key
-    rest = dict(zip((a, b, c, d, e), topo.vertex_data[[a, b, c, d, e], REST].tolist()))
+    rest = topo.rest_tuples
     volumes = [signed_volume(rest[d], rest[e], rest[u], rest[w]) for u, w in ((a, b), (b, c), (c, a))]
     added = [[d, e, u, w] if v > 0 else [d, e, w, u] for (u, w), v in zip(((a, b), (b, c), (c, a)), volumes)]
     # All three must lie on the same side of their edge d-e: same orientation of (u, w).
@@ -148,17 +251,15 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     ``volume_tolerance`` unless ``allow_volume_change``. Returns the new elements.
     """
     ring, polygon, closed = topo.edge_ring(a, b)
-    rest = topo.vertex_data[:, REST]
+    rest = topo.rest_tuples
     m = len(polygon)
     if m < 3:
         raise TopologyError(f"general flip of edge ({a}, {b}): only {m} vertices around it")
-    # quality of the two tetrahedra over every triangle (i, j, k), i < j < k
-    triples = np.array(list(itertools.combinations(range(m), 3)))
-    poly = np.asarray(polygon)[triples]
-    pts_b = rest[np.column_stack([poly, np.full(len(poly), b)])]
-    pts_a = rest[np.column_stack([poly[:, [0, 2, 1]], np.full(len(poly), a)])]
-    quality = np.minimum(tet_qualities(pts_a), tet_qualities(pts_b))
-    q = {tuple(t): v for t, v in zip(triples.tolist(), quality.tolist())}
+    # quality of the two tetrahedra (i, k, j, a) and (i, j, k, b) over every triangle i < j < k
+    corners, rest_a, rest_b = [rest[v] for v in polygon], rest[a], rest[b]
+    q = {(i, j, k): _smaller(_quality(corners[i], corners[k], corners[j], rest_a),
+                             _quality(corners[i], corners[j], corners[k], rest_b))
+         for i, j, k in itertools.combinations(range(m), 3)}
     best: dict[tuple[int, int], tuple[float, int]] = {}
     for span in range(2, m):
         for i in range(m - span):
@@ -178,7 +279,7 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     added = [[u, v, w, b] for u, v, w in triangles] + [[u, w, v, a] for u, v, w in triangles]
     if not closed:
         before = sum(topo.rest_volume(t) for t in ring)
-        after = sum(signed_volume(*rest[t].tolist()) for t in added)
+        after = sum(signed_volume(*[rest[v] for v in t]) for t in added)
         if abs(after - before) > volume_tolerance * before and not allow_volume_change:
             raise TopologyError(f"general flip of boundary edge ({a}, {b}) would change the volume by "
                                 f"{(after - before) / before:.1e} (its boundary faces are not coplanar)")
@@ -193,8 +294,9 @@ def move_vertex(topo: TetTopology, v: int, parents, weights, *, feature_angle: f
     within a flat boundary or along a straight crease, so the boundary and the volume stay)
     or, with ``feature_angle`` (degrees) > 0, the vertex slides along one of its boundary
     edges (``parents`` = (v, other end)) on a smooth boundary: no two of its boundary faces'
-    normals differ by ``feature_angle`` or more. That slide changes the volume, by a
-    fraction second order in the step, as the thesis's boundary flips do (5.1.2)."""
+    normals differ by ``feature_angle`` or more. That slide changes the volume slightly (as
+    the thesis's boundary flips do, 5.1.2): in proportion to the step and to the boundary's
+    curvature, about 1e-3 of the volume of the elements around v in the tests."""
     weights = _weights(weights, len(parents), f"moving vertex {v}")
     target = _point(topo, parents, weights)
     around = sorted(topo.vertex_tets[v])
@@ -217,16 +319,24 @@ def _is_boundary_edge(topo: TetTopology, a: int, b: int) -> bool:
 
 def _boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
     """Unit normals (K, 3) of the boundary faces around vertex v."""
-    rest = topo.vertex_data[:, REST]
+    rest = topo.rest_tuples
     normals = []
     for t in topo.vertex_tets[v]:
         tet = topo.tet(t)
-        for local in TET_FACES.tolist():
-            tri = [tet[i] for i in local]
+        for i, j, k in _FACES:
+            tri = (tet[i], tet[j], tet[k])
             if v in tri and len(topo.face_tets[face_key(*tri)]) == 1:
-                n = np.cross(rest[tri[1]] - rest[tri[0]], rest[tri[2]] - rest[tri[0]])
-                normals.append(n / np.linalg.norm(n))
+                normals.append(_unit_normal(rest[tri[0]], rest[tri[1]], rest[tri[2]]))
     return np.array(normals).reshape(-1, 3)
+
+
+def _unit_normal(p0, p1, p2) -> tuple[float, float, float]:
+    """Unit normal of triangle p0 p1 p2 (right-hand rule)."""
+    ax, ay, az = p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]
+    bx, by, bz = p2[0] - p0[0], p2[1] - p0[1], p2[2] - p0[2]
+    nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    length = math.sqrt(nx * nx + ny * ny + nz * nz)
+    return nx / length, ny / length, nz / length
 
 
 def unsew_face(topo: TetTopology, key: tuple[int, int, int]) -> None:
@@ -239,32 +349,31 @@ def unsew_face(topo: TetTopology, key: tuple[int, int, int]) -> None:
 
 def vertex_fans(topo: TetTopology, v: int) -> list[list[int]]:
     """The elements around v grouped into fans connected through faces on v that are not
-    unsewn; the largest fan first."""
+    unsewn; the largest fan first, each fan in the order of ``vertex_tets[v]``."""
     around = list(topo.vertex_tets[v])
-    parent = {t: t for t in around}
-
-    def find(t):
-        while parent[t] != t:
-            parent[t] = parent[parent[t]]
-            t = parent[t]
-        return t
-
+    face_tets, unsewn, tets = topo.face_tets, topo.unsewn, topo.tets
+    fan_of: dict[int, int] = {}
+    count = 0
+    for start in around:  # a search through the faces on v from each element not yet reached
+        if start in fan_of:
+            continue
+        fan_of[start] = count
+        stack = [start]
+        while stack:
+            o0, o1, o2 = (u for u in tets[stack.pop()].tolist() if u != v)
+            for x, y in ((o0, o1), (o0, o2), (o1, o2)):  # the three faces on v
+                key = face_key(v, x, y)
+                if key in unsewn:
+                    continue
+                for s in face_tets[key]:
+                    if s not in fan_of:
+                        fan_of[s] = count
+                        stack.append(s)
+        count += 1
+    fans: list[list[int]] = [[] for _ in range(count)]
     for t in around:
-        tet = topo.tet(t)
-        for local in TET_FACES.tolist():
-            tri = [tet[i] for i in local]
-            if v not in tri:
-                continue
-            key = face_key(*tri)
-            if key in topo.unsewn:
-                continue
-            for s in topo.face_tets[key]:
-                if s != t:
-                    parent[find(s)] = find(t)
-    fans: dict[int, list[int]] = {}
-    for t in around:
-        fans.setdefault(find(t), []).append(t)
-    return sorted(fans.values(), key=lambda f: (-len(f), min(f)))
+        fans[fan_of[t]].append(t)
+    return sorted(fans, key=lambda f: (-len(f), min(f)))
 
 
 def duplicate_vertex(topo: TetTopology, v: int) -> list[int]:
