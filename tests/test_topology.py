@@ -972,3 +972,18 @@ def test_move_vertex_within_a_flat_boundary_of_the_dish_keeps_the_volume():
         topo = dish()
         assert (min(v, u), max(v, u)) in boundary_edges(topo)
         applied(topo, move_vertex, v, [v, u], [0.7, 0.3], tets=0)
+
+
+def test_retarget_keeps_unsewn_faces_without_the_vertex_unsewn():
+    """Duplicating a vertex retargets elements; a face of such an element that does not hold
+    the vertex and was unsewn (on the cut) must stay unsewn, or the fans of its own vertices
+    would join across the cut when they are duplicated in turn."""
+    topo = make_topology(two_tets())
+    key = next(k for k, owners in topo.face_tets.items() if len(owners) == 2)
+    unsew_face(topo, key)
+    t = topo.face_tets[key][0]
+    v = next(u for u in topo.tet(t) if u not in key)  # the apex: not on the unsewn face
+    w = topo.add_vertex([v], [1.0])
+    topo.retarget(t, v, w)
+    assert key in topo.unsewn and len(topo.face_tets[key]) == 2 and t in topo.face_tets[key]
+    assert w in topo.tet(t) and v not in topo.tet(t)

@@ -427,13 +427,16 @@ class TetTopology:
 
         Unlinking and linking again leaves the adjacency as it would be had t been removed and
         added (t last in the element list of each of its faces), which later operators'
-        choices depend on."""
-        self._unlink(t)
+        choices depend on. Its unsewn faces without ``old`` stay unsewn (unlinking alone
+        would sew them again, joining the fans of their vertices across a cut)."""
         tet = self.tets[t].tolist()
+        keep_open = [key for key in _face_keys(tet) if key in self.unsewn and old not in key]
+        self._unlink(t)
         i = tet.index(old)
         tet[i] = new
         self.tets[t, i] = new
         self._link(t, tet)
+        self.unsewn.update(keep_open)
 
     def drop_unused_vertices(self) -> int:
         """Remove vertices no element uses (after elements were deleted) and renumber the
