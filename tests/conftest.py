@@ -66,3 +66,21 @@ def write_scene():
 def tiny_scene(tmp_path, write_scene):
     """Path of :data:`TINY_SCENE` written to tmp_path as ``tiny.toml``."""
     return write_scene(tmp_path, TINY_SCENE, "tiny.toml")
+
+
+def run_recording_blade(scene, output, frames=None):
+    """run_scene, also returning the scene's blade (its TetTopology is the cut mesh)."""
+    import wcut.scene
+
+    blades = []
+
+    class Recorded(wcut.scene._Blade):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            blades.append(self)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(wcut.scene, "_Blade", Recorded)
+        result = wcut.scene.run_scene(scene, output, frames=frames, progress=False)
+    (blade,) = blades
+    return result, blade

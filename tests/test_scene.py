@@ -483,27 +483,20 @@ blade = [[[0.081, -0.01, 0.05], [0.081, 0.05, 0.05]], [[0.081, -0.01, -0.01], [0
 """
 
 
-def test_scene_blade_cuts_a_sagging_beam_in_two(tmp_path, write_scene, monkeypatch):
+def test_scene_blade_cuts_a_sagging_beam_in_two(tmp_path, write_scene):
     """A cantilever sags under gravity while a blade goes down through it: the blade is mapped
     to the rest configuration each frame, so the wound follows the moving material and the
     beam comes apart into its clamped half and a free half, which falls."""
-    import wcut.scene
     from pxr import Usd, UsdGeom
 
     from wcut.topology import check_topology, connected_components
 
-    blades = []
+    from conftest import run_recording_blade
 
-    class Recorded(wcut.scene._Blade):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            blades.append(self)
-
-    monkeypatch.setattr(wcut.scene, "_Blade", Recorded)
     path = write_scene(tmp_path, SAGGING_CUT, "sag_cut.toml")
-    result = run_scene(load_scene(path), tmp_path / "sag_cut.usdc", frames=45, progress=False)
+    result, blade = run_recording_blade(load_scene(path), tmp_path / "sag_cut.usdc", frames=45)
     assert result.cut_events >= 2
-    topo = blades[0].topology
+    topo = blade.topology
     check_topology(topo, 0.16 * 0.04 * 0.04)
     mesh = topo.to_mesh()
     assert (result.nodes, result.elements) == (mesh.vertex_count, mesh.tet_count)

@@ -9,27 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import wcut.scene
-from wcut.scene import build_mesh, load_scene, run_scene
+from conftest import run_recording_blade
+from wcut.scene import build_mesh, load_scene
 from wcut.topology import check_topology, connected_components
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
-
-
-def run_recording_blade(scene, output, frames=None):
-    """run_scene, also returning the scene blade (its TetTopology is the cut mesh)."""
-    blades = []
-
-    class Recorded(wcut.scene._Blade):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            blades.append(self)
-
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(wcut.scene, "_Blade", Recorded)
-        result = run_scene(scene, output, frames=frames, progress=False)
-    (blade,) = blades
-    return result, blade
 
 
 def usd_points(path: Path, prim: str) -> list[np.ndarray]:
