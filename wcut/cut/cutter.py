@@ -63,9 +63,10 @@ CRUMB_QUALITY = 0.1
 #: volume / longest edge^3 of the regular tetrahedron
 REGULAR_QUALITY = 1.0 / (6.0 * np.sqrt(2.0))
 
-#: A 2-3 flip must keep its elements' quality above this fraction of the worst quality of the
-#: two it replaces; else the face is split instead (a flip can make slivers).
-FLIP_QUALITY = 0.1
+#: A 2-3 flip or a snap must keep the worst quality of the elements it changes above this
+#: fraction of what it was; else the face is split instead, or the vertex stays (either can
+#: make a sliver next to a poor element).
+QUALITY_DROP = 0.1
 
 #: Snapping may slide a vertex along a boundary edge over a curved boundary whose faces around
 #: it differ in normal by less than this (degrees): not a feature (thesis 5.1.2). Otherwise the
@@ -322,6 +323,9 @@ class Cutter:
         for _, v, other, s in sorted(moves):
             if v in snapped or other in snapped or v in sampling.on:
                 continue
+            if not self._move_keeps_quality(v, other, s):
+                stats.refused.append(f"snapping vertex {v} would make a sliver")
+                continue
             try:
                 move_vertex(self.topology, v, [v, other], [1.0 - s, s],
                             feature_angle=0.0 if v in self.wound_vertices else FEATURE_ANGLE)
@@ -411,9 +415,21 @@ class Cutter:
             marked.add(m)
         return marked
 
+    def _move_keeps_quality(self, v: int, other: int, s: float) -> bool:
+        """Whether moving vertex v to ``(1 - s) v + s other`` (rest configuration) keeps the
+        worst quality of its elements above ``QUALITY_DROP`` times what it was: a snap next to
+        a poor element could flatten it."""
+        topo = self.topology
+        x = topo.rest_positions
+        around = topo.tets[sorted(topo.vertex_tets[v])]
+        before = x[around]
+        after = before.copy()
+        after[around == v] = (1.0 - s) * x[v] + s * x[other]
+        return tet_qualities(after).min() >= QUALITY_DROP * tet_qualities(before).min()
+
     def _flip_keeps_quality(self, key) -> bool:
         """Whether the 2-3 flip of interior face ``key`` keeps the worst element quality (volume /
-        longest edge^3, rest configuration) above ``FLIP_QUALITY`` times that of the two
+        longest edge^3, rest configuration) above ``QUALITY_DROP`` times that of the two
         elements it replaces. A flip can make a sliver; the face is then split instead."""
         topo = self.topology
         x = topo.rest_positions
@@ -422,7 +438,7 @@ class Cutter:
         d, e = (next(v for v in topo.tet(t) if v not in key) for t in owners)
         flipped = np.array([x[[d, e, u, w]] for u, w in ((a, b), (b, c), (c, a))])
         before = tet_qualities(x[topo.tets[owners]]).min()
-        return np.abs(tet_qualities(flipped)).min() >= FLIP_QUALITY * before
+        return np.abs(tet_qualities(flipped)).min() >= QUALITY_DROP * before
 
     def _element_point(self, surface: CutSurface, sampling: _Sampling, tet: list[int]):
         """Barycentric weights of the 1-4 split vertex of element ``tet`` (thesis 5.1.1, 5.3)
