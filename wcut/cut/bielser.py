@@ -17,10 +17,8 @@ separation doubles them (5.2.1). Snapping with ``epsilon`` happens first, as in 
 from __future__ import annotations
 
 from ..mesh import TET_FACES
-import numpy as np
-
 from ..topology import TopologyError, bisect_edge, face_key, move_vertex
-from .cutter import MIN_SNAP, CutStats, Cutter, _edge
+from .cutter import MIN_SNAP, CutStats, Cutter, _edge, barycentric
 
 
 def bielser_cut(cutter: Cutter, surface, slots, stats: CutStats) -> None:
@@ -67,9 +65,7 @@ def _onto_surface_in_face(cutter: Cutter, surface, f: int, key) -> None:
     cut again by the next cut along it (a progressive cut recuts everything swept so far).
     Left where it is if the move would spoil an element."""
     corners = cutter.coordinates()[list(key)]
-    midpoint = cutter.coordinates()[f]
-    local = np.linalg.lstsq((corners[1:] - corners[0]).T, midpoint - corners[0], rcond=None)[0]
-    weights = np.concatenate([[1.0 - local.sum()], local])
+    weights = barycentric(cutter.coordinates()[f], corners)
     moved = cutter._onto_surface(surface, corners, weights)
     if moved is not weights:
         try:

@@ -490,9 +490,7 @@ class Cutter:
             p = p - gap / along * step
         else:
             return weights
-        edges = (corners[1:] - corners[0]).T
-        local = np.linalg.lstsq(edges, p - corners[0], rcond=None)[0]
-        moved = np.concatenate([[1.0 - local.sum()], local])
+        moved = barycentric(p, corners)
         return moved if moved.min() >= 0.5 * weights.min() else weights
 
     @staticmethod
@@ -631,3 +629,10 @@ def _boundary_edges(triangles: np.ndarray) -> np.ndarray:
     edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     unique, count = np.unique(edges, axis=0, return_counts=True)
     return unique[count == 1]
+
+
+def barycentric(point: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Barycentric weights of ``point`` (3,) over the corners (k, 3) of a triangle (k = 3,
+    least squares: the point's projection on its plane) or a tetrahedron (k = 4)."""
+    local = np.linalg.lstsq((corners[1:] - corners[0]).T, point - corners[0], rcond=None)[0]
+    return np.concatenate([[1.0 - local.sum()], local])
