@@ -448,8 +448,8 @@ class _Blade:
     (:meth:`~wcut.topology.TetTopology.rest_points`, thesis 3.2), and the cut is the strip
     between the blade mapped last frame and the blade mapped now: consecutive strips share
     their edges in the material, so the wound has no gaps however the body moves. The cuts
-    are progressive (see :meth:`wcut.cut.Cutter.cut`): the front of the last one opens as
-    the blade moves on."""
+    are progressive (see :meth:`wcut.cut.Cutter.cut`): an element opens once the blade has
+    passed through it."""
 
     def __init__(self, cut: dict, mesh):
         from .cut import Cutter, SweptBlade

@@ -162,8 +162,11 @@ class Cutter:
         #: vertices on the faces this cutter opened, and their copies: the lips of the wound
         #: coincide at rest, so snapping must not slide one of them off its plane alone
         self.wound_vertices: set[int] = set()
-        #: the increments of the progressive cut so far (vertices, triangles)
-        self._swept: list[tuple[np.ndarray, np.ndarray]] = []
+        #: the surface swept by the progressive cut so far: its vertices (the increments' shared
+        #: vertices welded), their indices by coordinates, and its triangles per increment
+        self._swept_points: list[list[float]] = []
+        self._swept_index: dict[tuple[float, ...], int] = {}
+        self._swept_triangles: list[np.ndarray] = []
         self._rest = False
 
     def _longest_edge(self) -> float:
@@ -202,7 +205,7 @@ class Cutter:
             if progressive:
                 surface, slots = self._progressive_surface(surface, bounds)
             else:
-                self._swept = []
+                self._swept_points, self._swept_index, self._swept_triangles = [], {}, []
                 slots = self._candidates(surface, bounds)
             if self.method == "delete":
                 self._delete(surface, slots, stats)
@@ -245,15 +248,31 @@ class Cutter:
         return np.array(sorted(around), dtype=np.int64)
 
     def _progressive_surface(self, increment: CutSurface, bounds) -> tuple[CutSurface, np.ndarray]:
-        """Everything swept so far, welded into one surface, and the elements near
-        ``increment`` that the blade has passed through completely."""
+        """The part of everything swept so far near the elements ``increment`` may cut, welded
+        into one surface, and those of the elements the blade has passed through completely.
+
+        Only swept triangles within ``_margin`` of the candidate elements' box are kept: no
+        other can cross, touch or be nearest to anything the cut looks at, and an edge left
+        open by dropping a triangle lies outside that box. So the cost stays local however
+        long the cut has been going on."""
         if not isinstance(increment, TriangleSurface):
             raise CutError(f"a progressive cut takes a TriangleSurface increment, got {type(increment).__name__}")
         slots = self._candidates(increment, bounds)
-        self._swept.append((increment.vertices, increment.triangles))
-        offsets = np.cumsum([0] + [len(v) for v, _ in self._swept])
-        vertices, inverse = np.unique(np.concatenate([v for v, _ in self._swept]), axis=0, return_inverse=True)
-        triangles = inverse.ravel()[np.concatenate([t + o for (_, t), o in zip(self._swept, offsets)])]
+        ids = []
+        for point in increment.vertices.tolist():
+            ids.append(self._swept_index.setdefault(tuple(point), len(self._swept_points)))
+            if ids[-1] == len(self._swept_points):
+                self._swept_points.append(point)
+        self._swept_triangles.append(np.asarray(ids, dtype=np.int64)[increment.triangles])
+        if not len(slots):
+            return increment, slots
+        vertices, triangles = np.asarray(self._swept_points), np.concatenate(self._swept_triangles)
+        corners = self.coordinates()[self.topology.tets[slots]].reshape(-1, 3)
+        lower, upper = corners.min(axis=0) - self._margin, corners.max(axis=0) + self._margin
+        spans = vertices[triangles]
+        triangles = triangles[np.all((spans.max(axis=1) >= lower) & (spans.min(axis=1) <= upper), axis=1)]
+        if not len(triangles):  # the increment only grazes the candidates' box
+            return increment, slots[:0]
         swept = TriangleSurface(vertices, triangles)
         return swept, slots[~self._crossed_by(slots, vertices[_boundary_edges(triangles)])]
 

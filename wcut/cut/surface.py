@@ -568,7 +568,8 @@ class SweptBlade:
         return _quads(vertices, k, k + 1, k + 3, k + 2)
 
     def samples(self, frame: int, count: int) -> np.ndarray:
-        """(count, 3) points (m) evenly spaced along the blade at ``frame`` (0..F-1), ends included."""
+        """(max(count, 2), 3) points (m) evenly spaced along the blade at ``frame`` (0..F-1),
+        its two ends included."""
         if not 0 <= frame < self.frame_count:
             raise SurfaceError(f"blade frame {frame} out of range 0..{self.frame_count - 1}")
         s = np.linspace(0.0, 1.0, max(int(count), 2))[:, None]
