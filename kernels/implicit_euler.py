@@ -18,6 +18,7 @@ import warp as wp
 @wp.kernel
 def assemble_system(
     particle_mass: wp.array(dtype=float),
+    particle_load_mass: wp.array(dtype=float),
     particle_fixed: wp.array(dtype=wp.int32),
     particle_qd: wp.array(dtype=wp.vec3),
     particle_f: wp.array(dtype=wp.vec3),
@@ -30,14 +31,17 @@ def assemble_system(
     inv_diagonal: wp.array(dtype=wp.vec3),
     mass_scale: wp.array(dtype=float),
 ):
-    """Right-hand side ``b``, inverse diagonal of ``A`` (Jacobi) and ``(1 + h alpha) m``."""
+    """Right-hand side ``b``, inverse diagonal of ``A`` (Jacobi) and ``(1 + h alpha) m``.
+
+    Gravity acts through ``particle_load_mass`` (the consistent load ``int rho N_i dV``), inertia
+    and damping through the lumped ``particle_mass``; they are equal for linear elements."""
     i = wp.tid()
     if particle_fixed[i] != 0:
         rhs[i] = wp.vec3(0.0)
         inv_diagonal[i] = wp.vec3(0.0)
         return
     m = particle_mass[i]
-    rhs[i] = dt * (particle_f[i] + external_f[i] + m * gravity - (rayleigh_mass * m) * particle_qd[i])
+    rhs[i] = dt * (particle_f[i] + external_f[i] + particle_load_mass[i] * gravity - (rayleigh_mass * m) * particle_qd[i])
     ms = (1.0 + dt * rayleigh_mass) * m
     mass_scale[i] = ms
     d = particle_diagonal[i] + wp.vec3(ms)

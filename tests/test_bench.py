@@ -12,6 +12,8 @@ CUT_KEYS = {"name", "tets", "nodes", "cut_elements", "event_ms", "cut_ms", "rebu
 METHOD_KEYS = {"method", "epsilon", "cut_elements", "added_nodes_per_cut_element", "added_elements_per_cut_element",
                "components"}
 
+P2_KEYS = {"name", "tets", "nodes", "step_ms", "steps_per_second", "forces_ns_per_element", "matvec_ns_per_element",
+           "p1_same_corners_step_ms", "cg_iterations"}
 #: Two short beams of 1 cm cells with the 4 x 5 cross-section of wcut.bench.CUT_SCENES.
 TINY_CUTS = (("tiny_cut", (6, 4, 5), (0.06, 0.04, 0.05)), ("tiny_cut2", (10, 4, 5), (0.10, 0.04, 0.05)))
 
@@ -19,7 +21,7 @@ TINY_CUTS = (("tiny_cut", (6, 4, 5), (0.06, 0.04, 0.05)), ("tiny_cut2", (10, 4, 
 def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     path = tmp_path / "bench.json"
     result = run_benchmarks(path, quick=True, progress=False, scenes=(("tiny", (2, 2, 4), (0.02, 0.02, 0.04)),),
-                            cut_scenes=TINY_CUTS)
+                            cut_scenes=TINY_CUTS, p2_scenes=(("tiny_p2", (2, 2, 4), (0.02, 0.02, 0.04)),))
     written = json.loads(path.read_text())
     assert written == json.loads(json.dumps(result))
     (record,) = written["scenes"]
@@ -30,7 +32,15 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     assert abs(record["speedup_vs_reference"] - record["reference_step_ms"] / record["step_ms"]) < 0.05 * \
         record["speedup_vs_reference"] + 0.01
     out = capsys.readouterr().out
-    assert "tiny" in out and "tiny_cut2" in out and "bielser" in out
+    assert "tiny" in out and "tiny_cut2" in out and "bielser" in out and "tiny_p2" in out
+
+    # quadratic elements: same corners, plus one node per edge
+    (p2,) = written["quadratic"]
+    assert set(p2) == P2_KEYS
+    assert p2["tets"] == 5 * 2 * 2 * 4 and p2["nodes"] > 3 * 3 * 5
+    for key in P2_KEYS - {"name", "tets", "nodes", "cg_iterations"}:
+        assert p2[key] > 0, key
+    assert abs(p2["steps_per_second"] - 1e3 / p2["step_ms"]) < 0.01 * p2["steps_per_second"] + 0.1
 
     # cut events: the plane crosses the 4 x 5 cross-section, 100 elements, whatever the length
     events = written["cut_events"]
@@ -65,8 +75,9 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
 
 
 def test_benchmark_without_cut_scenes_reports_no_cut_results(tmp_path):
-    result = run_benchmarks(tmp_path / "bench.json", quick=True, progress=False, scenes=(), cut_scenes=())
-    assert result["scenes"] == [] and result["cut_events"] == []
+    result = run_benchmarks(tmp_path / "bench.json", quick=True, progress=False, scenes=(), cut_scenes=(),
+                            p2_scenes=())
+    assert result["scenes"] == [] and result["cut_events"] == [] and result["quadratic"] == []
     assert "cut_event_size_ratio" not in result and "cut_methods" not in result
     assert json.loads((tmp_path / "bench.json").read_text()) == result
 

@@ -62,7 +62,7 @@ def test_defaults_and_name_from_file(tmp_path, write_scene):
     assert scene.material == {"density": 1000.0, "youngs_modulus": 1.0e5, "poisson_ratio": 0.3}
     assert scene.loads["gravity"] == [0.0, 0.0, -9.81]
     assert scene.mesh["tets_per_hex"] == 5 and scene.mesh["origin"] == [0.0, 0.0, 0.0]
-    assert scene.output == {"path": None, "stress_colors": True, "stress_max": None, "up_axis": "Z"}
+    assert scene.output == {"path": None, "stress_colors": True, "stress_max": None, "up_axis": "Z", "subdivision": 2}
     assert scene.frame_count == 60  # 2 s at 30 fps
 
 
@@ -107,6 +107,7 @@ def test_integers_are_accepted_as_numbers(tmp_path, write_scene):
         ("[simulation]\nduration = -1.0\n", "simulation.duration", "must be positive"),
         ('[output]\nup_axis = "X"\n', "output.up_axis", "'Y' or 'Z'"),
         ('[output]\nup_axis = "z"\n', "output.up_axis", "'Y' or 'Z'"),
+        ("[output]\nsubdivision = 6\n", "output.subdivision", "0..5"),
         ("name = 7\n", "name", "expected a string"),
         ("solver = 3\n", "solver", "expected a table"),
     ],
@@ -128,6 +129,9 @@ def test_bad_values_name_the_key(tmp_path, write_scene, extra, key, words):
         ('[mesh]\ngenerator = "beam"\ncells = [2, 2]\n', "mesh.cells", "three integers"),
         ('[mesh]\ngenerator = "beam"\ncells = [2, 2, 2.0]\n', "mesh.cells[2]", "expected an integer"),
         ("name = 'x'\n", "mesh", "missing section"),
+        ('[mesh]\ngenerator = "beam"\norder = 3\n', "mesh.order", "1 (linear) or 2 (quadratic)"),
+        ('[mesh]\ngenerator = "beam"\norder = 2\n[cut]\nframes = [0, 1]\nblade = [[[0,0,0],[0,1,0]], '
+         '[[0,0,1],[0,1,1]]]\n', "cut", "not supported yet"),
     ],
 )
 def test_bad_mesh_section(tmp_path, write_scene, mesh_table, key, words):
@@ -512,3 +516,32 @@ def test_scene_blade_cuts_a_sagging_beam_in_two(tmp_path, write_scene):
     stage = Usd.Stage.Open(str(result.output))
     points = np.array(UsdGeom.Mesh(stage.GetPrimAtPath("/World/sag_cut")).GetPointsAttr().Get(45))
     assert points[:, 2].min() < -0.1
+
+
+def test_quadratic_scene_runs_and_writes_the_tessellated_surface(tmp_path, write_scene, small_beam):
+    """mesh.order = 2: a linear file gets edge nodes, a tetra10 file is used as is, and every
+    curved face is written as 4**subdivision triangles."""
+    from pxr import Usd, UsdGeom
+
+    from wcut.quadratic import to_quadratic
+
+    (tmp_path / "meshes").mkdir()
+    small_beam.save(tmp_path / "meshes" / "beam.vtu")
+    to_quadratic(small_beam).save(tmp_path / "meshes" / "beam10.vtu")
+    faces = len(small_beam.boundary().triangles)
+    for mesh_file, level in (("beam.vtu", 1), ("beam10.vtu", 2)):
+        text = (f'[mesh]\npath = "meshes/{mesh_file}"\norder = 2\n[output]\nsubdivision = {level}\n'
+                "[constraints]\nfixed_boxes = [[[-1, -1, -1], [1e-9, 1, 1]]]\n[simulation]\nduration = 0.2\n")
+        scene = load_scene(write_scene(tmp_path, text, f"p2_{level}.toml"))
+        mesh = build_mesh(scene)
+        assert mesh.order == 2 and mesh.tet_count == small_beam.tet_count
+        out = tmp_path / f"p2_{level}.usda"
+        result = run_scene(scene, out, progress=False)
+        assert result.nodes == small_beam.vertex_count + len(small_beam.edges())
+        assert validate_usd(out) == []
+        stage = Usd.Stage.Open(str(out))
+        (prim,) = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+        counts = UsdGeom.Mesh(prim).GetFaceVertexCountsAttr().Get(Usd.TimeCode(1))
+        assert len(counts) == faces * 4 ** level
+        points = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode(result.frames)))
+        assert np.isfinite(points).all() and points[:, 2].min() < -1e-4  # it sags under gravity

@@ -31,6 +31,8 @@ DT = 0.01
 #: Cut-event meshes: name, hexahedra along x, y, z, size (m). Thin beams of 1 cm cells whose
 #: 4 x 5 cross-section a plane x = const crosses in 100 elements, whatever the length.
 CUT_SCENES = (("cut_20k", (200, 4, 5), (2.0, 0.04, 0.05)), ("cut_100k", (1000, 4, 5), (10.0, 0.04, 0.05)))
+#: Quadratic-element beams: name, hexahedra along x, y, z, size (m); 5 tetrahedra per cell.
+P2_SCENES = (("p2_beam_10k", (10, 10, 20), (0.1, 0.1, 0.2)),)
 #: Where the plane crosses its cell, as a fraction of the cell (not through a node layer).
 CUT_OFFSET = 0.37
 
@@ -147,6 +149,50 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
     }
 
 
+def bench_quadratic(name: str, cells, size, *, repeats: int = 20, device=None) -> dict:
+    """Time a full step and the P2 element kernels on a quadratic beam (straight edges), set up
+    like :func:`bench_scene`, and a step of the linear beam of the same corners beside it."""
+    from .kernels import tet_p2
+    from .quadratic import to_quadratic
+
+    linear = beam(*cells, size=size)
+    mesh = to_quadratic(linear)
+    times = {}
+    for label, each in (("p2", mesh), ("p1", linear)):
+        model = Model(each, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3, rayleigh_mass=0.1,
+                      rayleigh_stiffness=0.01, gravity=(9.81, 0.0, 0.0),
+                      fixed=each.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9)), device=device)
+        solver = SolverCorotational(model, cg_iterations=CG_ITERATIONS, cg_tolerance=0.0)
+        state, scratch = model.state(), model.state()
+        for _ in range(10):  # bend it a little so rotations are not the identity
+            solver.step(state, scratch, None, DT)
+            state, scratch = scratch, state
+        times[label] = _median_seconds(lambda: (solver.step(state, scratch, None, DT),
+                                                wp.synchronize_device(model.device)), repeats)
+        if label == "p2":
+            forces_s = _median_seconds(solver.launch_element_pass(state, scratch, DT, record=True).launch, repeats)
+            y = wp.zeros(model.particle_count, dtype=wp.vec3, device=model.device)
+            one, zero = wp.array([1.0], dtype=float, device=model.device), wp.zeros(1, dtype=float,
+                                                                                     device=model.device)
+            matvec = wp.launch(tet_p2.tet_matvec, model.tet_count, device=model.device, record_cmd=True,
+                               inputs=[model.tet_indices, solver.tet_rotated_gradients, model.tet_stiffness,
+                                       state.particle_qd, 1.0, 0, one, zero], outputs=[y])
+            matvec_s = _median_seconds(matvec.launch, repeats * 5)
+            p2_nodes, p2_tets = model.particle_count, model.tet_count
+    per_element = 1e9 / p2_tets
+    return {
+        "name": name,
+        "tets": p2_tets,
+        "nodes": p2_nodes,
+        "step_ms": round(times["p2"] * 1e3, 3),
+        "steps_per_second": round(1.0 / times["p2"], 1),
+        "forces_ns_per_element": round(forces_s * per_element, 2),
+        "matvec_ns_per_element": round(matvec_s * per_element, 2),
+        "p1_same_corners_step_ms": round(times["p1"] * 1e3, 3),
+        "cg_iterations": CG_ITERATIONS,
+    }
+
+
 def _cut_setup(cells, size):
     """Mesh, model, state and the plane of a cut-event benchmark: a beam clamped at x = 0 and
     the plane x = middle cell + CUT_OFFSET, slightly tilted."""
@@ -215,7 +261,7 @@ def bench_cut_methods(cells, size, epsilons=(0.0, 0.1)) -> list[dict]:
 
 
 def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True, scenes=SCENES,
-                   cut_scenes=CUT_SCENES) -> dict:
+                   cut_scenes=CUT_SCENES, p2_scenes=P2_SCENES) -> dict:
     """Run every benchmark scene, print a table and optionally write JSON (atomically).
 
     ``forces_ns_per_element`` is the once-per-step element kernel (rotation, forces, right-hand
@@ -234,7 +280,13 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
         if progress and sys.stderr.isatty():
             print(f"[{i + 1}/{len(cut_scenes)}] cut event {name} ...", file=sys.stderr)
         cut_events.append(bench_cut_event(name, cells, size, repeats=2 if quick else 7))
-    result = {"device": str(wp.get_device()), "warp": wp.config.version, "scenes": records, "cut_events": cut_events}
+    quadratic = []
+    for i, (name, cells, size) in enumerate(p2_scenes):
+        if progress and sys.stderr.isatty():
+            print(f"[{i + 1}/{len(p2_scenes)}] quadratic {name} ...", file=sys.stderr)
+        quadratic.append(bench_quadratic(name, cells, size, repeats=5 if quick else 20))
+    result = {"device": str(wp.get_device()), "warp": wp.config.version, "scenes": records, "cut_events": cut_events,
+              "quadratic": quadratic}
     if cut_scenes:
         result["cut_event_size_ratio"] = round(cut_events[-1]["event_ms"] / cut_events[0]["event_ms"], 2)
         result["cut_methods"] = bench_cut_methods(*cut_scenes[0][1:])
@@ -248,6 +300,11 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
                                             ("added_nodes_per_cut_element", "nodes/cut el"),
                                             ("added_elements_per_cut_element", "elements/cut el"),
                                             ("components", "pieces")])
+    if quadratic:
+        _print_rows(quadratic, [("name", "quadratic"), ("tets", "tets"), ("nodes", "nodes"), ("step_ms", "step ms"),
+                                ("steps_per_second", "steps/s"), ("forces_ns_per_element", "forces ns/el"),
+                                ("matvec_ns_per_element", "matvec ns/el"),
+                                ("p1_same_corners_step_ms", "P1 same corners ms")])
     if json_path is not None:
         with atomic_path(json_path) as tmp:
             Path(tmp).write_text(json.dumps(result, indent=2) + "\n")

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from . import p2
 from .errors import ModelError
 from .mesh import TetMesh, edge_matrices
 
@@ -133,8 +134,9 @@ class Attachments:
         points = np.atleast_2d(np.asarray(points, dtype=np.float64))
         if points.shape[1] != 3 or not np.isfinite(points).all():
             raise ModelError(f"attachment points must be finite (S, 3) coordinates, got shape {points.shape}")
-        X3 = mesh.vertices[mesh.tets[:, 3]]
-        Dm_inv = np.linalg.inv(edge_matrices(mesh.vertices, mesh.tets))
+        corners = mesh.tets[:, :4]  # a quadratic element: its corners' linear interpolation
+        X3 = mesh.vertices[corners[:, 3]]
+        Dm_inv = np.linalg.inv(edge_matrices(mesh.vertices, corners))
         indices = np.empty((len(points), 4), np.int32)
         weights = np.empty((len(points), 4))
         for s, p in enumerate(points):
@@ -142,7 +144,7 @@ class Attachments:
             bary = np.concatenate([xi, 1.0 - xi.sum(axis=1, keepdims=True)], axis=1)
             e = int(np.argmax(bary.min(axis=1)))
             w = np.clip(bary[e], 0.0, 1.0)
-            indices[s], weights[s] = mesh.tets[e], w / w.sum()
+            indices[s], weights[s] = corners[e], w / w.sum()
         return Attachments(indices, weights, np.broadcast_to(np.asarray(stiffness, float), (len(points),)).copy())
 
     def __len__(self) -> int:
@@ -157,6 +159,13 @@ def _rest_frames(rest: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.nda
     """``Dm^{-1}`` (M, 3, 3) and rest volumes (M,) of elements (rest positions in metres)."""
     Dm = edge_matrices(rest, tets)
     return np.linalg.inv(Dm), np.abs(np.linalg.det(Dm)) / 6.0
+
+
+def _quadratic_rest_frames(rest: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``J^{-1}`` (M, 4, 3, 3) at the Gauss points of quadratic elements (M, 10) and the
+    points' volume shares ``w_g det J`` (M, 4) in m^3 (rest positions in metres)."""
+    J = p2.jacobians(rest, tets, p2.GAUSS_POINTS)
+    return np.linalg.inv(J), np.linalg.det(J) * p2.GAUSS_WEIGHTS
 
 
 def _untouched_vertices(change) -> np.ndarray:
@@ -233,14 +242,15 @@ class State:
         particle_qd: (N,) wp.vec3 velocities (m/s).
         particle_f: (N,) wp.vec3 external nodal forces (N) applied during a step from this
             state; zero by default. The solver reads it and never clears it.
-        tet_rotation: (M,) wp.quat element rotations of the last step (warm start).
+        tet_rotation: wp.quat rotations of the last step (warm start): (M,) one per linear
+            element, (M, 4) one per Gauss point of a quadratic element.
     """
 
     def __init__(self, model: "Model"):
         self.particle_q = wp.clone(model.particle_q)
         self.particle_qd = wp.clone(model.particle_qd)
         self.particle_f = wp.zeros(model.particle_count, dtype=wp.vec3, device=model.device)
-        self.tet_rotation = wp.full(model.tet_count, wp.quat_identity(), dtype=wp.quat, device=model.device)
+        self.tet_rotation = wp.full(model.tet_rotation_shape, wp.quat_identity(), dtype=wp.quat, device=model.device)
 
     @classmethod
     def of(cls, model: "Model", particle_q: np.ndarray, particle_qd: np.ndarray, particle_f: np.ndarray,
@@ -273,10 +283,12 @@ class Control:
 
 
 class Model:
-    """Rest data of a corotational linear-tetrahedron object.
+    """Rest data of a corotational tetrahedral object: linear (P1) or quadratic (P2) elements.
 
     Args:
-        mesh: the validated tetrahedral mesh (rest configuration, metres).
+        mesh: the validated mesh (rest configuration, metres): a :class:`wcut.mesh.TetMesh`
+            (4-node elements) or a :class:`wcut.quadratic.QuadraticTetMesh` (10-node elements,
+            possibly curved).
         density: kg/m^3, a number or one value per element.
         youngs_modulus: Pa, a number or one value per element.
         poisson_ratio: dimensionless in (-1, 0.5), a number or one value per element.
@@ -284,19 +296,34 @@ class Model:
         rayleigh_stiffness: Rayleigh damping coefficient beta (s).
         gravity: acceleration (m/s^2).
         fixed: vertices held in place (Dirichlet): integer indices or a boolean mask.
-        attachments: attachment springs (targets in :class:`Control`).
+        attachments: attachment springs (targets in :class:`Control`). On quadratic elements
+            they weigh the element's corners (a linear interpolation of the attached point).
         device: Warp device; defaults to Warp's current device.
 
     Attributes (every array is a ``wp.array`` on ``device``):
+        tet_order: 1 or 2, the elements' polynomial degree.
         particle_q, particle_qd: (N,) vec3 rest positions (m) and initial velocities (m/s).
-        particle_mass: (N,) lumped mass (kg): each element gives a quarter of its mass to each
-            of its vertices (the row-sum lumping of thesis 3.2, exact for P1).
+        particle_mass: (N,) lumped mass (kg). P1: each element gives a quarter of its mass to
+            each vertex (the row-sum lumping of thesis 3.2). P2: HRZ lumping (Hinton, Rock and
+            Zienkiewicz 1976), each node's share proportional to its diagonal entry of the
+            consistent mass matrix: 1/36 of the element mass per corner, 4/27 per edge node.
+            Row-sum lumping would give the corners a negative mass (-1/20); HRZ keeps every
+            mass positive, the total exact and the mass diagonal, so the solver's
+            Jacobi-preconditioned conjugate gradient and node-wise kernels serve P2 unchanged.
+        particle_load_mass: (N,) ``int rho N_a dV`` (kg): gravity acts on node a as
+            ``particle_load_mass[a] * g``, the consistent load vector. Equal to
+            ``particle_mass`` for P1; for P2 the corners' entries are negative (-1/20 of the
+            element mass), which keeps the static response of P2 of order 2 (a lumped load
+            would perturb it).
         particle_fixed: (N,) int32, 1 for a fixed vertex.
-        tet_indices: (M,) vec4i vertex indices, positively oriented.
-        tet_poses: (M,) mat33 ``Dm^{-1}`` (Newton's name), ``Dm = [X0-X3 | X1-X3 | X2-X3]``;
-            row l is the shape-function gradient grad N_l (1/m), l = 0..2.
-        tet_rest_volume: (M,) rest volume (m^3).
-        tet_stiffness: (M,) vec2 ``(V mu, V lambda)`` (N*m).
+        tet_indices: (M,) vertex indices, positively oriented: vec4i (P1) or a length-10
+            int32 vector in VTK tetra10 order (P2; type ``wcut.kernels.tet_p2.vec10i``).
+        tet_poses: P1: (M,) mat33 ``Dm^{-1}`` (Newton's name), ``Dm = [X0-X3 | X1-X3 | X2-X3]``;
+            row l is the shape-function gradient grad N_l (1/m), l = 0..2. P2: (M, 4) mat33,
+            ``J^{-1}`` at each Gauss point (see ``wcut.kernels.tet_p2``).
+        tet_rest_volume: (M,) rest volume (m^3); exact for curved P2 elements.
+        tet_stiffness: P1: (M,) vec2 ``(V mu, V lambda)`` (N*m). P2: (M, 4) vec2, the same
+            with ``V`` the Gauss point's volume share ``w det J``.
         tet_density, tet_youngs_modulus, tet_poisson_ratio: (M,) material (kg/m^3, Pa, 1).
         attachment_indices, attachment_weights, attachment_stiffness: (S,) vec4i, vec4, float (N/m).
         attachment_rest_points: (S,) vec3 rest positions of the attached points (m).
@@ -336,16 +363,38 @@ class Model:
             raise ModelError(f"attachments: vertex index {outside[0]} out of range 0..{N - 1}")
 
         rest = mesh.vertices.astype(np.float32).astype(np.float64)  # what the kernels see
-        poses, volume = _rest_frames(rest, mesh.tets)
+        frames = _quadratic_rest_frames if getattr(mesh, "order", 1) == 2 else _rest_frames
+        poses, volume = frames(rest, mesh.tets)
         self._upload(mesh, rest, poses, volume, rho, E, nu, fixed_mask, attachments)
 
     def _upload(self, mesh: TetMesh, rest, poses, volume, rho, E, nu, fixed_mask, attachments: Attachments) -> None:
-        """Derive masses and stiffness from the host data and create the device arrays."""
+        """Derive masses and stiffness from the host data and create the device arrays.
+
+        ``poses`` and ``volume`` are the rest frames: ``Dm^{-1}`` (M, 3, 3) and volumes (M,)
+        for P1, ``J^{-1}`` (M, 4, 3, 3) and Gauss volume shares (M, 4) for P2."""
         N, M = len(rest), len(mesh.tets)
         self.mesh = mesh
+        self.tet_order = getattr(mesh, "order", 1)
         self.particle_count, self.tet_count = N, M
         mu, lam = lame_parameters(E, nu)
-        mass = np.bincount(mesh.tets.ravel(), weights=np.repeat(rho * volume / 4.0, 4), minlength=N)
+        tets = mesh.tets
+        if self.tet_order == 1:
+            self.tet_rotation_shape = M
+            mass = np.bincount(tets.ravel(), weights=np.repeat(rho * volume / 4.0, 4), minlength=N)
+            load_mass = mass
+            stiffness = np.stack([volume * mu, volume * lam], axis=-1)
+            rest_volume, index_type = volume, wp.vec4i
+        else:
+            from .kernels.tet_p2 import vec10i
+
+            self.tet_rotation_shape = (M, 4)
+            rest_volume = p2.volumes(rest, tets)
+            mass = np.bincount(tets.ravel(), weights=(np.outer(rho * rest_volume, p2.HRZ_FRACTIONS)).ravel(),
+                               minlength=N)
+            load = volume @ p2.shape_functions(p2.GAUSS_POINTS)  # (M, 10): int N_a dV by the Gauss rule
+            load_mass = np.bincount(tets.ravel(), weights=(rho[:, None] * load).ravel(), minlength=N)
+            stiffness = volume[:, :, None] * np.stack([mu, lam], axis=-1)[:, None, :]
+            index_type = vec10i
         rest_points = np.einsum("sj,sjk->sk", attachments.weights, rest[attachments.indices]) \
             if len(attachments) else np.zeros((0, 3))
 
@@ -354,11 +403,12 @@ class Model:
         self.particle_q = wp.array(rest, dtype=wp.vec3, device=d)
         self.particle_qd = wp.zeros(N, dtype=wp.vec3, device=d)
         self.particle_mass = wp.array(mass, dtype=float, device=d)
+        self.particle_load_mass = wp.array(load_mass, dtype=float, device=d)
         self.particle_fixed = wp.array(fixed_mask, dtype=wp.int32, device=d)
-        self.tet_indices = wp.array(mesh.tets.astype(np.int32), dtype=wp.vec4i, device=d)
+        self.tet_indices = wp.array(tets.astype(np.int32), dtype=index_type, device=d)
         self.tet_poses = wp.array(poses, dtype=wp.mat33, device=d)
-        self.tet_rest_volume = wp.array(volume, dtype=float, device=d)
-        self.tet_stiffness = wp.array(np.stack([volume * mu, volume * lam], axis=1), dtype=wp.vec2, device=d)
+        self.tet_rest_volume = wp.array(rest_volume, dtype=float, device=d)
+        self.tet_stiffness = wp.array(stiffness, dtype=wp.vec2, device=d)
         self.tet_density = wp.array(rho, dtype=float, device=d)
         self.tet_youngs_modulus = wp.array(E, dtype=float, device=d)
         self.tet_poisson_ratio = wp.array(nu, dtype=float, device=d)
@@ -380,6 +430,8 @@ class Model:
 
         Returns ``(model, state)``; the solver must be made again for the new model.
         """
+        if self.tet_order != 1:
+            raise ModelError("rebuild: topological changes of quadratic models are not supported yet")
         if change.vertex_count_before != self.particle_count or change.element_count_before != self.tet_count:
             raise ModelError(f"rebuild: the change is from a mesh of {change.vertex_count_before} vertices and "
                              f"{change.element_count_before} elements, the model has {self.particle_count} "

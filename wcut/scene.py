@@ -11,6 +11,8 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
     [mesh]
     path = "meshes/organ.msh"          # any format meshio reads, relative to the scene file
     # or: generator = "beam", cells = [4, 4, 20], size = [0.04, 0.04, 0.2], origin = [0, 0, 0]
+    order = 2                          # quadratic elements: a tetra10 file is used as is, linear
+                                       # elements get straight edge nodes (default 1: linear)
     [material]      density (kg/m^3), youngs_modulus (Pa), poisson_ratio
     [damping]       rayleigh_mass (1/s), rayleigh_stiffness (s)
     [constraints]   fixed_indices = [..], fixed_boxes = [[[x0,y0,z0],[x1,y1,z1]], ...]
@@ -20,7 +22,9 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
     [solver]        dt (s), cg_iterations (<= 10000), cg_tolerance, rotation_iterations
     [simulation]    duration (s), fps (frames per second written)
     [output]        path, stress_colors (bool), stress_max (Pa: top of the colour scale; default:
-                    the largest von Mises stress of the run), up_axis ("Z" or "Y")
+                    the largest von Mises stress of the run), up_axis ("Z" or "Y"),
+                    subdivision (quadratic elements: each curved boundary face is written as
+                    4**subdivision flat triangles, 0..5, default 2)
     [cut]           a blade that cuts the object progressively (thesis chapter 5):
                     method ("paulus", "bielser", "snap", "delete"), epsilon (snapping threshold,
                     fraction of the mean edge length), frames = [f0, f1, ...] (key frames),
@@ -110,7 +114,7 @@ MAX_SUBSTEPS = 10000
 _SCHEMA = {
     "mesh": {"path": (_string, None), "generator": (_string, None), "cells": (_int3, [4, 4, 20]),
              "size": (_vec3, [0.04, 0.04, 0.2]), "origin": (_vec3, [0.0, 0.0, 0.0]),
-             "tets_per_hex": (_integer, 5)},
+             "tets_per_hex": (_integer, 5), "order": (_integer, 1)},
     "material": {"density": (_number, 1000.0), "youngs_modulus": (_number, 1.0e5),
                  "poisson_ratio": (_number, 0.3)},
     "damping": {"rayleigh_mass": (_number, 0.0), "rayleigh_stiffness": (_number, 0.0)},
@@ -120,7 +124,7 @@ _SCHEMA = {
                "rotation_iterations": (_integer, 8)},
     "simulation": {"duration": (_number, 2.0), "fps": (_number, 30.0)},
     "output": {"path": (_string, None), "stress_colors": (_boolean, True), "stress_max": (_number, None),
-               "up_axis": (_string, "Z")},
+               "up_axis": (_string, "Z"), "subdivision": (_integer, 2)},
 }
 _CUT_SCHEMA = {"method": (_string, "paulus"), "epsilon": (_number, 0.1), "frames": (_list_of(_integer), None),
                "blade": (None, None)}
@@ -198,6 +202,12 @@ def _parse(raw: dict, path: Path) -> Scene:
         raise SceneError("mesh: give exactly one of mesh.path and mesh.generator")
     if mesh["generator"] not in (None, "beam"):
         raise SceneError(f"mesh.generator: unknown generator {mesh['generator']!r} (expected 'beam')")
+    if mesh["order"] not in (1, 2):
+        raise SceneError(f"mesh.order: expected 1 (linear) or 2 (quadratic), got {mesh['order']}")
+    if not 0 <= sections["output"]["subdivision"] <= 5:
+        raise SceneError(f"output.subdivision: must be in 0..5, got {sections['output']['subdivision']}")
+    if mesh["order"] == 2 and "cut" in raw:
+        raise SceneError("cut: cutting quadratic elements (mesh.order = 2) is not supported yet")
     forces = sections["loads"].pop("force")
     if not isinstance(forces, list):
         raise SceneError("loads.force: expected an array of tables ([[loads.force]])")
@@ -288,13 +298,35 @@ def blade_path(cut: dict) -> np.ndarray:
 
 
 def build_mesh(scene: Scene):
-    """The scene's TetMesh: loaded (path relative to the scene file) or generated."""
+    """The scene's mesh: loaded (path relative to the scene file) or generated; a
+    :class:`~wcut.quadratic.QuadraticTetMesh` when ``mesh.order = 2``."""
     from .mesh import TetMesh, beam
+    from .quadratic import QuadraticTetMesh, to_quadratic
 
     m = scene.mesh
     if m["path"] is not None:
-        return TetMesh.load(scene.path.parent / m["path"])
-    return beam(*m["cells"], size=m["size"], origin=m["origin"], tets_per_hex=m["tets_per_hex"])
+        path = scene.path.parent / m["path"]
+        if m["order"] == 2 and _has_cells(path, "tetra10"):
+            return QuadraticTetMesh.load(path)
+        mesh = TetMesh.load(path)
+    else:
+        mesh = beam(*m["cells"], size=m["size"], origin=m["origin"], tets_per_hex=m["tets_per_hex"])
+    return to_quadratic(mesh) if m["order"] == 2 else mesh
+
+
+def _has_cells(path: Path, kind: str) -> bool:
+    """Whether a mesh file holds cells of a meshio type (False when it cannot be read: the
+    loader that follows reports why)."""
+    import contextlib
+    import io
+
+    import meshio
+
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            return any(block.type == kind for block in meshio.read(path).cells)
+    except (Exception, SystemExit):
+        return False
 
 
 def build_model(scene: Scene, mesh=None, device=None):
@@ -386,16 +418,17 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     state, next_state = model.state(), model.state()
     for each in (state, next_state):  # constant loads: the solver reads them and never clears them
         each.particle_f.assign(forces.astype(np.float32))
-    surface = model.mesh.boundary()
+    subdivision = scene.output["subdivision"]
+    surface = render_surface(model.mesh, subdivision)
     colored = scene.output["stress_colors"]
     # Frames are kept until the end so that every frame is coloured on one stress scale.
     points, triangles, stresses = [], [], []
 
     def record():
-        points.append(state.particle_q.numpy()[surface.vertex_ids].copy())
-        triangles.append(surface.local_triangles)
-        if colored:
-            stresses.append(vertex_von_mises(model, state)[surface.vertex_ids])
+        points.append(surface.points(state.particle_q.numpy()))
+        triangles.append(surface.triangles)
+        if colored:  # quadratic interpolation may undershoot 0 between nodes
+            stresses.append(np.maximum(surface.points(vertex_von_mises(model, state)), 0.0))
 
     blade = _Blade(scene.cut, model.mesh) if scene.cut else None
     cut_events = 0
@@ -425,7 +458,7 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
                 solver = SolverCorotational(model, cg_iterations=settings["cg_iterations"],
                                             cg_tolerance=settings["cg_tolerance"],
                                             rotation_iterations=settings["rotation_iterations"])
-                surface = model.mesh.boundary()
+                surface = render_surface(model.mesh, subdivision)
             record()
             bar.update(1)
     finally:
@@ -437,6 +470,17 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
             writer.write_frame(scene.name, frame, frame_points, triangles[frame], colors)
     return RunResult(frames=frames, steps=frames * substeps, mean_step_ms=1e3 * step_seconds / (frames * substeps),
                      nodes=model.particle_count, elements=model.tet_count, output=output, cut_events=cut_events)
+
+
+def render_surface(mesh, subdivision: int = 2):
+    """What is written of a mesh's boundary: its triangles (linear mesh) or its curved faces
+    tessellated ``subdivision`` times (quadratic mesh); a
+    :class:`~wcut.quadratic.SurfaceTessellation`."""
+    from .quadratic import SurfaceTessellation
+
+    if getattr(mesh, "order", 1) == 2:
+        return mesh.surface_tessellation(subdivision)
+    return SurfaceTessellation.of_linear(mesh)
 
 
 class _Blade:

@@ -25,12 +25,13 @@ import numpy as np
 import warp as wp
 
 from .errors import SimulationError
-from .kernels import attachments, cg, implicit_euler, tet_p1
+from .kernels import attachments, cg, implicit_euler, tet_p1, tet_p2
 from .model import Control, Model, State
 
 
 class SolverCorotational:
-    """Implicit Euler with one Newton step on corotational linear tetrahedra.
+    """Implicit Euler with one Newton step on corotational tetrahedra, linear or quadratic
+    (the kernels of ``wcut.kernels.tet_p1`` or ``tet_p2``, chosen by ``model.tet_order``).
 
     Args:
         model: the object to simulate.
@@ -73,7 +74,8 @@ class SolverCorotational:
         self.mass_scale = wp.zeros(n, dtype=float, device=d)
         self.dv = vec()
         self._r, self._z, self._p, self._q = vec(), vec(), vec(), vec()
-        self.tet_rotated_gradients = wp.zeros(model.tet_count, dtype=wp.mat33, device=d)
+        self._elements = tet_p2 if model.tet_order == 2 else tet_p1  # the kernels of the element family
+        self.tet_rotated_gradients = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33, device=d)
         self._rz = wp.zeros(self._cg_iterations + 1, dtype=float, device=d)
         self._pq = wp.zeros(self._cg_iterations, dtype=float, device=d)
         self._norms = wp.zeros(2, dtype=float, device=d)  # tol^2 b.D^-1 b (the threshold), b.D^-1 b
@@ -96,7 +98,7 @@ class SolverCorotational:
         """The once-per-step element kernel (rotations, forces, right-hand side terms,
         preconditioner diagonal, warm-start product); returns the recorded launch if ``record``."""
         m = self.model
-        return wp.launch(tet_p1.tet_forces, m.tet_count, device=m.device, record_cmd=record,
+        return wp.launch(self._elements.tet_forces, m.tet_count, device=m.device, record_cmd=record,
                          inputs=[m.tet_indices, m.tet_poses, m.tet_stiffness, state_in.particle_q,
                                  state_in.particle_qd, self.dv, state_in.tet_rotation, dt + m.rayleigh_stiffness,
                                  self.stiffness_scale(dt), self.rotation_iterations, self.rotation_tolerance],
@@ -112,7 +114,7 @@ class SolverCorotational:
                           inputs=[self.rhs, self.inv_diagonal, self.mass_scale, self.dv, self.cg_tolerance ** 2],
                           outputs=[q, r, z, p, rz, norms])]
         for k in range(self._cg_iterations):
-            cmds.append(wp.launch(tet_p1.tet_matvec, m.tet_count, device=d, record_cmd=True,
+            cmds.append(wp.launch(self._elements.tet_matvec, m.tet_count, device=d, record_cmd=True,
                                   inputs=[m.tet_indices, self.tet_rotated_gradients, m.tet_stiffness, p,
                                           stiffness_scale, k, rz, norms],
                                   outputs=[q]))
@@ -175,7 +177,8 @@ class SolverCorotational:
                               dt * dt],
                       outputs=[self._force, self.particle_diagonal, self._q])
         wp.launch(implicit_euler.assemble_system, m.particle_count, device=d,
-                  inputs=[m.particle_mass, m.particle_fixed, state_in.particle_qd, self._force, state_in.particle_f,
+                  inputs=[m.particle_mass, m.particle_load_mass, m.particle_fixed, state_in.particle_qd, self._force,
+                          state_in.particle_f,
                           self.particle_diagonal, m.gravity, dt, m.rayleigh_mass],
                   outputs=[self.rhs, self.inv_diagonal, self.mass_scale])
         for cmd in self._cg_commands:

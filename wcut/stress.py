@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .kernels import tet_p1
+from .kernels import tet_p1, tet_p2
 from .model import Model, State
 
 
@@ -13,14 +13,20 @@ def element_stress(model: Model, state: State) -> tuple[np.ndarray, np.ndarray]:
     """Per-element Cauchy stress (M, 3, 3) in world axes and von Mises stress (M,), in Pa.
 
     The stress is the corotated linear one, ``R sigma(sym(R^T F) - I) R^T``, with the
-    rotations of the state's last step.
+    rotations of the state's last step; for quadratic elements, the mean over the Gauss points.
     """
     stress = wp.empty(model.tet_count, dtype=wp.mat33, device=model.device)
     von_mises = wp.empty(model.tet_count, dtype=float, device=model.device)
-    wp.launch(tet_p1.tet_stress, model.tet_count, device=model.device,
-              inputs=[model.tet_indices, model.tet_poses, model.tet_stiffness, model.tet_rest_volume,
-                      state.tet_rotation, state.particle_q],
-              outputs=[stress, von_mises])
+    if model.tet_order == 2:
+        wp.launch(tet_p2.tet_stress, model.tet_count, device=model.device,
+                  inputs=[model.tet_indices, model.tet_poses, model.tet_stiffness, state.tet_rotation,
+                          state.particle_q],
+                  outputs=[stress, von_mises])
+    else:
+        wp.launch(tet_p1.tet_stress, model.tet_count, device=model.device,
+                  inputs=[model.tet_indices, model.tet_poses, model.tet_stiffness, model.tet_rest_volume,
+                          state.tet_rotation, state.particle_q],
+                  outputs=[stress, von_mises])
     return stress.numpy(), von_mises.numpy()
 
 
@@ -31,6 +37,7 @@ def vertex_von_mises(model: Model, state: State) -> np.ndarray:
     tets = model.mesh.tets
     total = np.zeros(model.particle_count)
     weight = np.zeros(model.particle_count)
-    np.add.at(total, tets.ravel(), np.repeat(vm * volume, 4))
-    np.add.at(weight, tets.ravel(), np.repeat(volume, 4))
+    nodes = tets.shape[1]
+    np.add.at(total, tets.ravel(), np.repeat(vm * volume, nodes))
+    np.add.at(weight, tets.ravel(), np.repeat(volume, nodes))
     return total / weight
