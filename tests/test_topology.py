@@ -11,7 +11,7 @@ from wcut.errors import WcutError
 from wcut.mesh import TetMesh, beam
 from wcut.topology import (TetTopology, TopologyError, bisect_edge, check_topology, connected_components,
                            duplicate_vertex, face_key, flip23, move_vertex, remove_edge, sew_unopened, split_face,
-                           split_tet, unsew_face, vertex_fans)
+                           split_tet, tet_qualities, tet_quality, unsew_face, vertex_fans)
 from wcut.topology.mesh import POSITION, REST, VELOCITY, signed_volume
 
 # ---------------------------------------------------------------------------------------------
@@ -304,6 +304,27 @@ def test_flip23_on_convex_pair():
     new = applied(topo, flip23, (0, 1, 2), tets=1)
     assert len(new) == 3 and (0, 1, 2) not in topo.face_tets
     assert topo.edge_tets(3, 4) == set(new)
+
+
+def test_flip23_quality_drop_refuses_a_flip_that_loses_too_much_quality():
+    """With ``quality_drop``, a flip whose worst element falls below that fraction of the worse
+    replaced element's quality is refused (mesh untouched); just above it, it is made."""
+    probe = make_topology(two_tets())
+    rest = probe.rest_positions
+    before = tet_qualities(rest[probe.tets[probe.face_tets[(0, 1, 2)]]]).min()
+    new = flip23(probe, (0, 1, 2))
+    ratio = tet_qualities(probe.rest_positions[probe.tets[new]]).min() / before
+    assert_refused(make_topology(two_tets()), flip23, (0, 1, 2), quality_drop=1.01 * ratio, match="quality")
+    applied(make_topology(two_tets()), flip23, (0, 1, 2), quality_drop=0.99 * ratio, tets=1)
+
+
+def test_tet_quality_matches_tet_qualities_to_the_last_bit():
+    """The plain-float quality of one element is the numpy batch's, bit for bit (the operators
+    use one, the checks the other)."""
+    rng = np.random.default_rng(3)
+    corners = rng.normal(size=(200, 4, 3)) * 10.0 ** rng.integers(-3, 3, size=(200, 1, 1))
+    batch = tet_qualities(np.concatenate([corners, corners]))  # > SMALL_BATCH: the numpy path
+    assert [tet_quality(*c) for c in corners.tolist()] == batch[:200].tolist()
 
 
 @pytest.mark.parametrize("name", BEAMS)

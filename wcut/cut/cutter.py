@@ -41,7 +41,7 @@ from ..errors import WcutError
 from ..mesh import TET_FACES
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
                         flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, tet_qualities,
-                        unsew_face)
+                        tet_quality, unsew_face)
 from .surface import CutSurface, Plane, TriangleSurface
 
 METHODS = ("paulus", "bielser", "snap", "delete")
@@ -372,12 +372,14 @@ class Cutter:
         marked: set[int] = set()
         cut_tets = [topo.tet(t) for t in sampling.cut_slots]
         reused = self.split_vertices & sampling.on
-        for t, tet in zip(sampling.cut_slots, cut_tets):
-            again = reused.intersection(tet)
-            if again:
-                marked |= again  # a piece of an element split before: its split vertex serves again
+        # a piece of an element split before: its split vertex serves again
+        again = [reused.intersection(tet) for tet in cut_tets]
+        points = iter(self._element_points(surface, sampling, [tet for tet, a in zip(cut_tets, again) if not a]))
+        for t, tet, old in zip(sampling.cut_slots, cut_tets, again):
+            if old:
+                marked |= old
                 continue
-            weights, real = self._element_point(surface, sampling, tet)
+            weights, real = next(points)
             try:
                 p, _ = split_tet(topo, t, weights)
             except TopologyError as exc:
@@ -388,8 +390,9 @@ class Cutter:
             if real:
                 marked.add(p)
         faces = {}
+        tet_faces = TET_FACES.tolist()
         for tet in cut_tets:
-            for local in TET_FACES.tolist():
+            for local in tet_faces:
                 tri = [tet[i] for i in local]
                 if reused.intersection(tri):
                     continue  # its vertex on the surface already joins the polygon
@@ -398,9 +401,9 @@ class Cutter:
         for key in faces:
             if key not in topo.face_tets:
                 continue
-            if len(topo.face_tets[key]) == 2 and self._flip_keeps_quality(key):
-                try:
-                    flip23(topo, key)
+            if len(topo.face_tets[key]) == 2:
+                try:  # refused also where it would make a sliver: the face is split instead
+                    flip23(topo, key, quality_drop=QUALITY_DROP)
                     stats.flips23 += 1
                     continue
                 except TopologyError:
@@ -446,27 +449,40 @@ class Cutter:
         after[around == v] = (1.0 - s) * x[v] + s * x[other]
         return tet_qualities(after).min() >= QUALITY_DROP * tet_qualities(before).min()
 
-    def _flip_keeps_quality(self, key) -> bool:
-        """Whether the 2-3 flip of interior face ``key`` keeps the worst element quality (volume /
-        longest edge^3, rest configuration) above ``QUALITY_DROP`` times that of the two
-        elements it replaces. A flip can make a sliver; the face is then split instead."""
-        topo = self.topology
-        x = topo.rest_positions
-        a, b, c = key
-        owners = topo.face_tets[key]
-        d, e = (next(v for v in topo.tet(t) if v not in key) for t in owners)
-        flipped = np.array([x[[d, e, u, w]] for u, w in ((a, b), (b, c), (c, a))])
-        before = tet_qualities(x[topo.tets[owners]]).min()
-        return np.abs(tet_qualities(flipped)).min() >= QUALITY_DROP * before
+    def _element_points(self, surface: CutSurface, sampling: _Sampling, tets: list[list[int]]) -> list:
+        """For each element of ``tets`` (vertex lists), the barycentric weights of its 1-4 split
+        vertex (thesis 5.1.1, 5.3) and whether it lies on the cut: the barycentre of the
+        crossings and on-vertices, or, with fewer than three of them, of those of the surface's
+        extension (:meth:`_extension_point`).
 
-    def _element_point(self, surface: CutSurface, sampling: _Sampling, tet: list[int]):
-        """Barycentric weights of the 1-4 split vertex of element ``tet`` (thesis 5.1.1, 5.3)
-        and whether it lies on the cut: the barycentre of the crossings and on-vertices, or,
-        with fewer than three of them, of those of the surface's extension."""
-        points = self._crossing_weights(tet, sampling.edges, sampling.on)
+        A barycentre of crossings is on S where S is flat (a plane: always); one query of the
+        tangent planes tells for all elements at once, and only the others are moved onto S
+        one by one (:meth:`_onto_surface`)."""
+        results: list = [None] * len(tets)
+        rows, means = [], []
+        for i, tet in enumerate(tets):
+            points = self._crossing_weights(tet, sampling.edges, sampling.on)
+            if len(points) >= 3:
+                rows.append(i)
+                means.append(_mean(points))
+            else:
+                results[i] = self._extension_point(surface, sampling, tet, points), False
+        if rows:
+            weights = np.array(means)
+            corners = self.coordinates()[np.array([tets[i] for i in rows])]  # (R, 4, 3)
+            p = np.einsum("rk,rkj->rj", weights, corners)
+            origin, normal = surface.tangent_planes(p)
+            on = (np.abs(np.einsum("rj,rj->r", normal, p - origin)) <= self.tolerance).tolist()
+            for r, i in enumerate(rows):
+                w = weights[r]
+                results[i] = (w if on[r] else self._onto_surface(surface, corners[r], w)), True
+        return results
+
+    def _extension_point(self, surface: CutSurface, sampling: _Sampling, tet: list[int], points: list) -> np.ndarray:
+        """Weights of the split vertex of element ``tet`` crossed at fewer than three
+        ``points`` (the front of a bounded surface): the barycentre of the crossings of the
+        surface's extension, pulled off the element's boundary where they are degenerate."""
         x = self.coordinates()
-        if len(points) >= 3:
-            return self._onto_surface(surface, x[tet], np.mean(points, axis=0)), True
         pairs = [(tet[i], tet[j]) for i, j in TET_EDGES]
         a = x[[p[0] for p in pairs]]
         b = x[[p[1] for p in pairs]]
@@ -477,7 +493,7 @@ class Cutter:
         weights = np.mean(points, axis=0)
         if len(points) < 3:  # degenerate: pull off the element's boundary
             weights = 0.75 * weights + 0.0625
-        return weights, False
+        return weights
 
     def _onto_surface(self, surface: CutSurface, corners: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Barycentric weights over ``corners`` (4 of an element or 3 of a face, m) of the
@@ -513,22 +529,26 @@ class Cutter:
         return moved if moved.min() >= 0.5 * weights.min() else weights
 
     @staticmethod
-    def _crossing_weights(vertices: list[int], edges: dict, on: set[int]) -> list[np.ndarray]:
+    def _crossing_weights(vertices: list[int], edges: dict, on: set[int]) -> list[list[float]]:
         """Barycentric weights (over ``vertices``) of the crossings on their edges and of the
-        vertices that are on the surface."""
+        vertices that are on the surface (lists of floats: a few per element, where numpy's
+        per-array cost would dominate)."""
         k = len(vertices)
         points = []
         for i in range(k):
-            if vertices[i] in on:
-                w = np.zeros(k)
+            vi = vertices[i]
+            if vi in on:
+                w = [0.0] * k
                 w[i] = 1.0
                 points.append(w)
             for j in range(i + 1, k):
-                key = _edge(vertices[i], vertices[j])
-                if key in edges:
-                    t = edges[key][0]
-                    s = t if vertices[i] == key[0] else 1.0 - t  # parameter from vertex i
-                    w = np.zeros(k)
+                vj = vertices[j]
+                key = (vi, vj) if vi < vj else (vj, vi)
+                hit = edges.get(key)
+                if hit is not None:
+                    t = hit[0]
+                    s = t if vi == key[0] else 1.0 - t  # parameter from vertex i
+                    w = [0.0] * k
                     w[i], w[j] = 1.0 - s, s
                     points.append(w)
         return points
@@ -541,7 +561,7 @@ class Cutter:
             return self._onto_surface(surface, self.coordinates()[list(key)], np.mean(points, axis=0)), True
         if not points:
             return None
-        return 0.5 * points[0] + 0.5 / 3.0, False
+        return 0.5 * np.asarray(points[0]) + 0.5 / 3.0, False
 
     # ----------------------------------------------------------- disconnection
     def _disconnect(self, surface: CutSurface, marked: set[int], stats: CutStats) -> None:
@@ -592,10 +612,11 @@ class Cutter:
 
         sliver_quality = CRUMB_QUALITY * REGULAR_QUALITY
         quality: dict[int, float] = {}
+        rest = topo.rest_tuples
 
         def sliver(t):
-            if t not in quality:
-                quality[t] = float(tet_qualities(x[topo.tets[t]][None])[0])
+            if t not in quality:  # tet_quality: tet_qualities' arithmetic without numpy's overhead
+                quality[t] = tet_quality(*[rest[v] for v in topo.tet(t)])
             return quality[t] < sliver_quality
 
         def crumb_from(start):
@@ -603,9 +624,7 @@ class Cutter:
             of small total volume; else None (the search stops at the first good element)."""
             seen, stack = {start}, [start]
             while stack:
-                tet = topo.tet(stack.pop())
-                for local in TET_FACES.tolist():
-                    face = face_key(*[tet[i] for i in local])
+                for face in topo.slot_face_keys[stack.pop()]:
                     if closed(face):
                         continue
                     for t in topo.face_tets[face]:
@@ -620,7 +639,7 @@ class Cutter:
             crumb = crumb_from(start) if sliver(start) else None
             if crumb is None:
                 continue
-            faces = {face_key(*[topo.tet(t)[i] for i in local]) for t in crumb for local in TET_FACES.tolist()}
+            faces = {face for t in crumb for face in topo.slot_face_keys[t]}
             mine = sorted(f for f in faces if f in opened_set)
             if mine:
                 area = [np.linalg.norm(np.cross(x[f[1]] - x[f[0]], x[f[2]] - x[f[0]])) for f in mine]
@@ -641,6 +660,17 @@ class Cutter:
         topo.replace_tets(sorted(doomed), [])
         stats.deleted_elements = len(doomed)
         topo.drop_unused_vertices()
+
+
+def _mean(points: list[list[float]]) -> list[float]:
+    """Component-wise mean of equal-length float lists, summed in order and divided by their
+    count, as ``np.mean(points, axis=0)`` rounds it."""
+    total = list(points[0])
+    for point in points[1:]:
+        for i, value in enumerate(point):
+            total[i] += value
+    count = len(points)
+    return [value / count for value in total]
 
 
 def _boundary_edges(triangles: np.ndarray) -> np.ndarray:

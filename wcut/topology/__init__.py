@@ -11,11 +11,11 @@ from .change import TopologyChange
 from .check import check_closed, check_topology, connected_components
 from .mesh import TetTopology, TopologyError, face_key
 from .operators import (bisect_edge, duplicate_vertex, flip23, move_vertex, remove_edge, sew_unopened,
-                        split_face, split_tet, tet_qualities, unsew_face, vertex_fans)
+                        split_face, split_tet, tet_qualities, tet_quality, unsew_face, vertex_fans)
 
 __all__ = [
     "TetTopology", "TopologyError", "TopologyChange", "face_key",
     "check_topology", "check_closed", "connected_components",
     "split_tet", "split_face", "flip23", "remove_edge", "bisect_edge", "move_vertex",
-    "unsew_face", "duplicate_vertex", "vertex_fans", "sew_unopened", "tet_qualities",
+    "unsew_face", "duplicate_vertex", "vertex_fans", "sew_unopened", "tet_qualities", "tet_quality",
 ]

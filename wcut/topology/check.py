@@ -18,7 +18,8 @@ def check_topology(topo: TetTopology, volume: float | None = None, volume_tolera
     """Raise :class:`TopologyError` unless the mesh is valid:
 
     - every live element well shaped and positively oriented (rest configuration);
-    - ``vertex_tets`` and ``face_tets`` equal to the adjacency rebuilt from the elements;
+    - ``vertex_tets``, ``face_tets`` and ``slot_face_keys`` equal to the adjacency rebuilt from
+      the elements;
     - every face in one or two elements, unsewn faces interior;
     - the boundary closed: each directed boundary edge matched by its reverse;
     - when ``volume`` is given, total rest volume equal to it (relative ``volume_tolerance``).
@@ -41,6 +42,9 @@ def check_topology(topo: TetTopology, volume: float | None = None, volume_tolera
         bad = next(v for v in range(topo.vertex_count) if vertex_tets[v] != topo.vertex_tets[v])
         raise TopologyError(f"elements around vertex {bad}: stored {sorted(topo.vertex_tets[bad])}, "
                             f"actual {sorted(vertex_tets[bad])}")
+    for t, tet in zip(slots.tolist(), tets.tolist()):
+        if set(topo.slot_face_keys[t]) != {face_key(tet[i], tet[j], tet[k]) for i, j, k in TET_FACES.tolist()}:
+            raise TopologyError(f"element {t} {tet}: stored face keys {topo.slot_face_keys[t]} are stale")
     stored = {k: sorted(v) for k, v in topo.face_tets.items()}
     actual = {k: sorted(v) for k, v in face_tets.items()}
     if stored != actual:

@@ -106,6 +106,11 @@ class TetTopology:
     :meth:`drop_unused_vertices`, which keep both in step (:attr:`rest_positions` is a
     read-only view); code that writes ``vertex_data[:, REST]`` itself must call
     :meth:`sync_rest_tuples` afterwards.
+
+    ``slot_face_keys[t]`` holds the keys of live element t's four faces (the sorted triples,
+    as in ``face_tets``), set when t is linked: the adjacency walks read them instead of
+    sorting vertices again. Read them, never write them; only the editing methods here change
+    ``tets``.
     """
 
     def __init__(self, mesh: TetMesh, positions=None, velocities=None):
@@ -127,6 +132,9 @@ class TetTopology:
         self._free: list[int] = []
         self.vertex_tets: list[set[int]] = [set() for _ in range(n)]
         self.face_tets: dict[tuple[int, int, int], list[int]] = {}
+        #: per slot, the keys of its element's four faces (:func:`_face_keys`): kept by
+        #: ``_link`` so that unlinking and the adjacency walks never sort vertices again
+        self.slot_face_keys: list[tuple | None] = [None] * len(self.tets)
         for t, tet in enumerate(mesh.tets.tolist()):
             self._link(t, tet)
         self.unsewn: set[tuple[int, int, int]] = set()
@@ -207,49 +215,55 @@ class TetTopology:
         around = self.edge_tets(a, b)
         if not around:
             raise TopologyError(f"edge ({a}, {b}) is not in the mesh")
-
-        def others(t):
-            return [v for v in self.tets[t].tolist() if v != a and v != b]
+        tets, face_tets, unsewn = self.tets, self.face_tets, self.unsewn
+        others = {t: [v for v in tets[t].tolist() if v != a and v != b] for t in around}
 
         def across(t, w):
-            nb = self.neighbors(t, face_key(a, b, w))
-            return nb[0] if nb else -1
+            """The element across face (a, b, w) of element t; -1 on the boundary or unsewn."""
+            key = face_key(a, b, w)
+            if key in unsewn:
+                return -1
+            for s in face_tets[key]:
+                if s != t:
+                    return s
+            return -1
 
         # An open ring starts at an element with a boundary face on the edge.
         start, first = next(iter(around)), None
         for t in around:
-            for w in others(t):
+            for w in others[t]:
                 if across(t, w) < 0:
                     start, first = t, w
                     break
             if first is not None:
                 break
         if first is None:
-            first = others(start)[0]
-        tets, polygon = [], [first]
+            first = others[start][0]
+        ring, polygon = [], [first]
         t, w = start, first
         while True:
-            u = [v for v in others(t) if v != w][0]
-            tets.append(t)
+            o0, o1 = others[t]
+            u = o0 if o0 != w else o1
+            ring.append(t)
             polygon.append(u)
             nxt = across(t, u)
             if nxt < 0 or nxt == start:
                 break
             t, w = nxt, u
-            if len(tets) > len(around):
+            if len(ring) > len(around):
                 raise TopologyError(f"edge ({a}, {b}): its ring of elements is not a manifold fan")
         closed = nxt == start
         if closed:
             polygon.pop()
-        if len(tets) != len(around):
+        if len(ring) != len(around):
             raise TopologyError(f"edge ({a}, {b}): its elements form more than one fan")
         rest = self.rest_tuples
         if signed_volume(rest[a], rest[b], rest[polygon[0]], rest[polygon[1]]) < 0:
-            tets.reverse()
+            ring.reverse()
             polygon.reverse()
-            if closed:  # keep polygon[i], polygon[i+1] the corners of tets[i]
+            if closed:  # keep polygon[i], polygon[i+1] the corners of ring[i]
                 polygon = polygon[-1:] + polygon[:-1]
-        return tets, polygon, closed
+        return ring, polygon, closed
 
     def is_boundary_vertex(self, v: int) -> bool:
         for t in self.vertex_tets[v]:
@@ -325,32 +339,35 @@ class TetTopology:
 
     # ------------------------------------------------------- low-level editing
     def _link(self, t: int, tet: list[int]) -> None:
-        """Enter element t, with vertices ``tet``, in the adjacency."""
+        """Enter element t, with vertices ``tet``, in the adjacency (t last in the element
+        list of each of its faces) and remember its face keys."""
         vertex_tets, face_tets = self.vertex_tets, self.face_tets
         for v in tet:
             vertex_tets[v].add(t)
-        for key in _face_keys(tet):
+        keys = self.slot_face_keys[t] = _face_keys(tet)
+        for key in keys:
             owners = face_tets.get(key)
             if owners is None:
                 face_tets[key] = [t]
             else:
                 owners.append(t)
 
-    def _unlink(self, t: int) -> None:
-        """Remove element t from the adjacency; a face left with fewer than two elements is
-        no longer unsewn."""
-        tet = self.tets[t].tolist()
+    def _unlink(self, t: int, tet: list[int] | None = None) -> None:
+        """Remove element t (vertices ``tet``, read from the slot when omitted) from the
+        adjacency; a face left with fewer than two elements is no longer unsewn."""
+        if tet is None:
+            tet = self.tets[t].tolist()
         vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn
         for v in tet:
             vertex_tets[v].discard(t)
-        for key in _face_keys(tet):
+        for key in self.slot_face_keys[t]:
             owners = face_tets[key]
             owners.remove(t)
-            if not owners:
-                del face_tets[key]
-                unsewn.discard(key)
-            elif len(owners) == 1:
-                unsewn.discard(key)
+            if len(owners) < 2:
+                if not owners:
+                    del face_tets[key]
+                if unsewn:  # most of the time nothing is unsewn: skip the hash of the key
+                    unsewn.discard(key)
 
     def _new_slot(self) -> int:
         if self._free:
@@ -358,6 +375,7 @@ class TetTopology:
         if self.slot_count == len(self.tets):
             self.tets = np.concatenate([self.tets, np.zeros_like(self.tets)])
             self.alive = np.concatenate([self.alive, np.zeros_like(self.alive)])
+            self.slot_face_keys.extend([None] * (len(self.tets) - len(self.slot_face_keys)))
         self.slot_count += 1
         return self.slot_count - 1
 
@@ -368,33 +386,47 @@ class TetTopology:
         New element i lies in removed element ``parents[i]`` (default ``removed[0]``), whose
         origin in the journal it inherits.
         """
+        journal = self._journal
         parents = parents or [removed[0]] * len(added)
-        origins = [self._journal.origin_of(t) if self._journal else -1 for t in parents]
+        origins = [journal.origin_of(t) for t in parents] if journal else [-1] * len(added)
+        alive = self.alive
         for t in removed:
             self._unlink(t)
-            self.alive[t] = False
-            if self._journal:
-                self._journal.removed(t)
-        self._free.extend(reversed(removed))
+            alive[t] = False
+            if journal:
+                journal.removed(t)
+        free = self._free
+        free.extend(reversed(removed))
         slots = []
         for tet, origin in zip(added, origins):
-            t = self._new_slot()
+            if free:
+                t = free.pop()
+            else:
+                t = self._new_slot()  # may grow (reallocate) tets and alive
+                alive = self.alive
             self.tets[t] = tet
-            self.alive[t] = True
+            alive[t] = True
             self._link(t, tet)
-            if self._journal:
-                self._journal.added(t, origin)
+            if journal:
+                journal.added(t, origin)
             slots.append(t)
         return slots
 
-    def add_vertex(self, parents: list[int], weights, origin_tet: int = -1) -> int:
+    def interpolate(self, parents: list[int], weights) -> np.ndarray:
+        """The barycentric combination of the attributes (a ``vertex_data`` row: rest
+        position, position, velocity) of ``parents`` with ``weights``."""
+        return np.asarray(weights, dtype=np.float64) @ self.vertex_data.take(parents, axis=0)  # take: a fast gather
+
+    def add_vertex(self, parents: list[int], weights, origin_tet: int = -1, data: np.ndarray | None = None) -> int:
         """A new vertex at the barycentric combination of ``parents`` with ``weights`` (all
-        attributes: rest position, position, velocity). Returns its index."""
+        attributes: rest position, position, velocity). ``data``, when given, must be
+        ``interpolate(parents, weights)`` (an operator that checked the new vertex's position
+        passes what it computed). Returns its index."""
         weights = np.asarray(weights, dtype=np.float64)
         if self.vertex_count == len(self.vertex_data):
             self.vertex_data = np.concatenate([self.vertex_data, np.zeros_like(self.vertex_data)])
         v = self.vertex_count
-        self.vertex_data[v] = weights @ self.vertex_data[parents]
+        self.vertex_data[v] = self.interpolate(parents, weights) if data is None else data
         self.vertex_count += 1
         self.vertex_tets.append(set())
         rest, rest32 = self._rest_tuples_of(v)
@@ -409,7 +441,7 @@ class TetTopology:
         weights = np.asarray(weights, dtype=np.float64)
         if self._journal:
             self._journal.vertex_from(v, parents, weights, -1)
-        self.vertex_data[v] = weights @ self.vertex_data[parents]
+        self.vertex_data[v] = self.interpolate(parents, weights)
         self.rest_tuples[v], self.rest_tuples32[v] = self._rest_tuples_of(v)
 
     def sync_rest_tuples(self) -> None:
@@ -429,14 +461,31 @@ class TetTopology:
         added (t last in the element list of each of its faces), which later operators'
         choices depend on. Its unsewn faces without ``old`` stay unsewn (unlinking alone
         would sew them again, joining the fans of their vertices across a cut)."""
+        # _unlink then _link, fused: the same changes to vertex_tets, face_tets and unsewn in
+        # the same order (set iteration order, and so later choices, depend on it)
         tet = self.tets[t].tolist()
-        keep_open = [key for key in _face_keys(tet) if key in self.unsewn and old not in key]
-        self._unlink(t)
+        vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn
+        for v in tet:
+            vertex_tets[v].discard(t)
+        for key in self.slot_face_keys[t]:
+            owners = face_tets[key]
+            owners.remove(t)
+            if not owners:
+                del face_tets[key]
+            if old in key:  # this face goes away (t leaves it, at most one element stays)
+                unsewn.discard(key)
         i = tet.index(old)
         tet[i] = new
         self.tets[t, i] = new
-        self._link(t, tet)
-        self.unsewn.update(keep_open)
+        for v in tet:
+            vertex_tets[v].add(t)
+        keys = self.slot_face_keys[t] = _face_keys(tet)
+        for key in keys:
+            owners = face_tets.get(key)
+            if owners is None:
+                face_tets[key] = [t]
+            else:
+                owners.append(t)
 
     def drop_unused_vertices(self) -> int:
         """Remove vertices no element uses (after elements were deleted) and renumber the
@@ -459,6 +508,8 @@ class TetTopology:
         self.rest_tuples = [self.rest_tuples[v] for v in order]
         self.rest_tuples32 = [self.rest_tuples32[v] for v in order]
         self.face_tets = {face_key(*remap[list(k)].tolist()): owners for k, owners in self.face_tets.items()}
+        for t, tet in zip(live.tolist(), self.tets[live].tolist()):
+            self.slot_face_keys[t] = _face_keys(tet)
         self.unsewn = {face_key(*remap[list(k)].tolist()) for k in self.unsewn}
         if self._journal:
             self._journal.vertex_renumber = kept if self._journal.vertex_renumber is None \

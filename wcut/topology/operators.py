@@ -31,11 +31,12 @@ SMALL_BATCH = 16
 _FACES = ((1, 2, 3), (0, 3, 2), (0, 1, 3), (0, 2, 1))
 
 
-def _quality(p0, p1, p2, p3) -> float:
+def tet_quality(p0, p1, p2, p3) -> float:
     """Quality (volume / longest edge^3) of one tetrahedron, corners as (x, y, z) floats.
 
     The arithmetic of :func:`tet_qualities`, operation for operation, so the two agree to the
-    last bit. Four coincident corners give NaN (0/0), as numpy does."""
+    last bit (use this one for a few elements: it avoids numpy's per-call overhead). Four
+    coincident corners give NaN (0/0), as numpy does."""
     x0, y0, z0 = p0
     x1, y1, z1 = p1
     x2, y2, z2 = p2
@@ -52,6 +53,9 @@ def _quality(p0, p1, p2, p3) -> float:
     if longest2 == 0.0:
         return math.nan
     return volume / (longest2 * math.sqrt(longest2))
+
+
+_quality = tet_quality  # the short name the operators use
 
 
 def tet_qualities(points: np.ndarray) -> np.ndarray:
@@ -81,29 +85,41 @@ def _smaller(a: float, b: float) -> float:
     return a if a < b or a != a else b
 
 
-def _check(topo: TetTopology, tets: list[list[int]], what: str, extra: dict | None = None) -> None:
-    """Refuse unless every tetrahedron of ``tets`` is well shaped in the rest configuration.
+def _check(topo: TetTopology, tets: list[list[int]], what: str, extra: dict | None = None) -> float:
+    """Refuse unless every tetrahedron of ``tets`` is well shaped in the rest configuration;
+    return the smallest float64 quality among them (for an operator's own criteria, so that
+    it need not compute the qualities again).
 
     ``extra`` maps a vertex not yet in the mesh (index -1, -2, ...) to its rest position.
     The worst element is the first of smallest quality, or the first NaN (as ``np.argmin``)."""
     rest, rest32 = topo.rest_tuples, topo.rest_tuples32
-    extra64, extra32 = {}, {}
-    for v, p in (extra or {}).items():
-        extra64[v] = tuple(np.asarray(p, dtype=np.float64).tolist())
-        extra32[v] = rounded32(extra64[v])
-    worst, worst_q = 0, math.inf
+    extra64, extra32 = _extra_points(extra) if extra else ({}, {})
+    worst, worst_q, worst64 = 0, math.inf, math.inf
     for i, tet in enumerate(tets):
         # The simulation sees float32 rest positions: the element must survive that rounding.
-        q = _smaller(_quality(*[extra64[v] if v < 0 else rest[v] for v in tet]),
-                     _quality(*[extra32[v] if v < 0 else rest32[v] for v in tet]))
+        q64 = _quality(*[extra64[v] if v < 0 else rest[v] for v in tet])
+        q = _smaller(q64, _quality(*[extra32[v] if v < 0 else rest32[v] for v in tet]))
         if q != q:
             worst, worst_q = i, q
             break
         if q < worst_q:
             worst, worst_q = i, q
+        if q64 < worst64:
+            worst64 = q64
     if not worst_q > DEGENERATE_TOL:
         state = "inverted" if worst_q < 0 else "flat"
         raise TopologyError(f"{what}: element {tets[worst]} would be {state} (quality {worst_q:.2e})")
+    return worst64
+
+
+def _extra_points(extra: dict) -> tuple[dict, dict]:
+    """Rest positions of vertices not yet in the mesh (vertex -> any three floats) as float
+    tuples, as they are and rounded to float32."""
+    extra64, extra32 = {}, {}
+    for v, p in extra.items():
+        extra64[v] = tuple(p.tolist()) if isinstance(p, np.ndarray) else tuple(map(float, p))
+        extra32[v] = rounded32(extra64[v])
+    return extra64, extra32
 
 
 def _weights(weights, count: int, what: str) -> np.ndarray:
@@ -119,7 +135,7 @@ def _weights(weights, count: int, what: str) -> np.ndarray:
 
 
 def _point(topo: TetTopology, parents, weights) -> np.ndarray:
-    return np.asarray(weights, float) @ topo.vertex_data[parents, REST]
+    return np.asarray(weights, float) @ topo.vertex_data.take(parents, axis=0)[:, REST]
 
 
 def _containing(topo: TetTopology, removed: list[int], added: list[list[int]]) -> list[int]:
@@ -135,11 +151,17 @@ def _containing(topo: TetTopology, removed: list[int], added: list[list[int]]) -
     parents = []
     for tet in added:
         p0, p1, p2, p3 = (rest[v] for v in tet)
-        centroid = ((p0[0] + p1[0] + p2[0] + p3[0]) / 4.0, (p0[1] + p1[1] + p2[1] + p3[1]) / 4.0,
-                    (p0[2] + p1[2] + p2[2] + p3[2]) / 4.0)
+        cx, cy, cz = ((p0[0] + p1[0] + p2[0] + p3[0]) / 4.0, (p0[1] + p1[1] + p2[1] + p3[1]) / 4.0,
+                      (p0[2] + p1[2] + p2[2] + p3[2]) / 4.0)
         best, best_min = 0, -math.inf
-        for i, frame in enumerate(frames):
-            smallest = _smallest_barycentric(frame, centroid)
+        for i, (r0, r1, r2, det, c3) in enumerate(frames):
+            # the smallest barycentric coordinate of the centroid in removed element i, inline:
+            # a general flip asks for some fifty of these
+            px, py, pz = cx - c3[0], cy - c3[1], cz - c3[2]
+            x0 = (r0[0] * px + r0[1] * py + r0[2] * pz) / det
+            x1 = (r1[0] * px + r1[1] * py + r1[2] * pz) / det
+            x2 = (r2[0] * px + r2[1] * py + r2[2] * pz) / det
+            smallest = min(x0, x1, x2, 1.0 - (x0 + x1 + x2))
             if smallest > best_min:
                 best, best_min = i, smallest
         parents.append(removed[best])
@@ -147,7 +169,7 @@ def _containing(topo: TetTopology, removed: list[int], added: list[list[int]]) -
 
 
 def _barycentric_frame(c0, c1, c2, c3):
-    """What :func:`_smallest_barycentric` needs of the element c0 c1 c2 c3: the rows of
+    """What :func:`_containing` needs of the element c0 c1 c2 c3: the rows of
     ``det(Dm) Dm^{-1}`` (cross products of the columns of ``Dm = [c0-c3 | c1-c3 | c2-c3]``),
     ``det(Dm)`` and c3."""
     a = (c0[0] - c3[0], c0[1] - c3[1], c0[2] - c3[2])
@@ -160,16 +182,6 @@ def _barycentric_frame(c0, c1, c2, c3):
     return bc, ca, ab, det, c3
 
 
-def _smallest_barycentric(frame, p) -> float:
-    """The smallest barycentric coordinate of point p in the element of ``frame``."""
-    r0, r1, r2, det, c3 = frame
-    px, py, pz = p[0] - c3[0], p[1] - c3[1], p[2] - c3[2]
-    x0 = (r0[0] * px + r0[1] * py + r0[2] * pz) / det
-    x1 = (r1[0] * px + r1[1] * py + r1[2] * pz) / det
-    x2 = (r2[0] * px + r2[1] * py + r2[2] * pz) / det
-    return min(x0, x1, x2, 1.0 - (x0 + x1 + x2))
-
-
 def _substitute(tet: list[int], old: int, new: int) -> list[int]:
     return [new if v == old else v for v in tet]
 
@@ -179,9 +191,10 @@ def split_tet(topo: TetTopology, t: int, weights) -> tuple[int, list[int]]:
     replaces it by four elements sharing the vertex. Returns (vertex, new elements)."""
     tet = topo.tet(t)
     weights = _weights(weights, 4, f"split 1-4 of element {t}")
+    data = topo.interpolate(tet, weights)  # the new vertex's attributes: checked, then stored
     added = [_substitute(tet, v, -1) for v in tet]
-    _check(topo, added, f"split 1-4 of element {t}", {-1: _point(topo, tet, weights)})
-    p = topo.add_vertex(tet, weights, origin_tet=t)
+    _check(topo, added, f"split 1-4 of element {t}", {-1: data[REST]})
+    p = topo.add_vertex(tet, weights, origin_tet=t, data=data)
     return p, topo.replace_tets([t], [_substitute(s, -1, p) for s in added])
 
 
@@ -194,22 +207,27 @@ def split_face(topo: TetTopology, key: tuple[int, int, int], weights) -> tuple[i
     if not owners:
         raise TopologyError(f"split of face {key}: no such face")
     weights = _weights(weights, 3, f"split of face {key}")
+    data = topo.interpolate(list(key), weights)
     added = [_substitute(topo.tet(t), v, -1) for t in owners for v in key]
-    _check(topo, added, f"split of face {key}", {-1: _point(topo, list(key), weights)})
-    p = topo.add_vertex(list(key), weights, origin_tet=owners[0])
+    _check(topo, added, f"split of face {key}", {-1: data[REST]})
+    p = topo.add_vertex(list(key), weights, origin_tet=owners[0], data=data)
     return p, topo.replace_tets(owners, [_substitute(s, -1, p) for s in added], [t for t in owners for _ in key])
 
 
-def flip23(topo: TetTopology, key: tuple[int, int, int]) -> list[int]:
+def flip23(topo: TetTopology, key: tuple[int, int, int], quality_drop: float | None = None) -> list[int]:
     """2-3 flip (thesis figure 5.2): the two elements on interior face ``key`` = (a, b, c),
     with apices d and e, become (d, e, a, b), (d, e, b, c), (d, e, c, a) around edge (d, e).
-    Refused unless segment d-e passes through the face. Returns the new elements."""
+    Refused unless segment d-e passes through the face, and, with ``quality_drop``, unless
+    the worst new element's quality (float64, rest) is at least ``quality_drop`` times that
+    of the worse of the two elements it replaces (a flip can make a sliver next to a good
+    element). Returns the new elements."""
     owners = topo.face_tets.get(key, ())
     if len(owners) != 2 or key in topo.unsewn:
         raise TopologyError(f"flip 2-3 of face {key}: not an interior face")
     t0, t1 = owners
-    d = next(v for v in topo.tet(t0) if v not in key)
-    e = next(v for v in topo.tet(t1) if v not in key)
+    tet0, tet1 = topo.tet(t0), topo.tet(t1)
+    d = next(v for v in tet0 if v not in key)
+    e = next(v for v in tet1 if v not in key)
     a, b, c = key
     rest = topo.rest_tuples
     volumes = [signed_volume(rest[d], rest[e], rest[u], rest[w]) for u, w in ((a, b), (b, c), (c, a))]
@@ -217,7 +235,12 @@ def flip23(topo: TetTopology, key: tuple[int, int, int]) -> list[int]:
     # All three must lie on the same side of their edge d-e: same orientation of (u, w).
     if len({v > 0 for v in volumes}) != 1:
         raise TopologyError(f"flip 2-3 of face {key}: edge ({d}, {e}) does not cross the face")
-    _check(topo, added, f"flip 2-3 of face {key}")
+    worst = _check(topo, added, f"flip 2-3 of face {key}")
+    if quality_drop is not None:
+        before = _smaller(_quality(*[rest[v] for v in tet0]), _quality(*[rest[v] for v in tet1]))
+        if not worst >= quality_drop * before:
+            raise TopologyError(f"flip 2-3 of face {key}: its worst element would have {worst / before:.2g} "
+                                f"of the quality of the worse element it replaces")
     return topo.replace_tets([t0, t1], added, _containing(topo, [t0, t1], added))
 
 
@@ -233,8 +256,9 @@ def bisect_edge(topo: TetTopology, a: int, b: int, s: float) -> tuple[int, list[
     for t in around:
         tet = topo.tet(t)
         added += [_substitute(tet, a, -1), _substitute(tet, b, -1)]
-    _check(topo, added, f"bisection of edge ({a}, {b})", {-1: _point(topo, [a, b], [1 - s, s])})
-    m = topo.add_vertex([a, b], [1 - s, s], origin_tet=around[0])
+    data = topo.interpolate([a, b], [1 - s, s])
+    _check(topo, added, f"bisection of edge ({a}, {b})", {-1: data[REST]})
+    m = topo.add_vertex([a, b], [1 - s, s], origin_tet=around[0], data=data)
     return m, topo.replace_tets(around, [_substitute(t, -1, m) for t in added], [t for t in around for _ in (0, 1)])
 
 
@@ -351,7 +375,7 @@ def vertex_fans(topo: TetTopology, v: int) -> list[list[int]]:
     """The elements around v grouped into fans connected through faces on v that are not
     unsewn; the largest fan first, each fan in the order of ``vertex_tets[v]``."""
     around = list(topo.vertex_tets[v])
-    face_tets, unsewn, tets = topo.face_tets, topo.unsewn, topo.tets
+    face_tets, unsewn, slot_face_keys = topo.face_tets, topo.unsewn, topo.slot_face_keys
     fan_of: dict[int, int] = {}
     count = 0
     for start in around:  # a search through the faces on v from each element not yet reached
@@ -360,10 +384,8 @@ def vertex_fans(topo: TetTopology, v: int) -> list[list[int]]:
         fan_of[start] = count
         stack = [start]
         while stack:
-            o0, o1, o2 = (u for u in tets[stack.pop()].tolist() if u != v)
-            for x, y in ((o0, o1), (o0, o2), (o1, o2)):  # the three faces on v
-                key = face_key(v, x, y)
-                if key in unsewn:
+            for key in slot_face_keys[stack.pop()]:
+                if v not in key or key in unsewn:  # only the three faces on v, and sewn
                     continue
                 for s in face_tets[key]:
                     if s not in fan_of:
