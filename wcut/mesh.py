@@ -80,7 +80,52 @@ class BoundarySurface:
     local_triangles: np.ndarray
 
 
-class TetMesh:
+class _VertexQueries:
+    """Queries shared by linear and quadratic meshes (``vertices`` (N, 3), ``tets`` (M, k),
+    ``source_vertex_ids``)."""
+
+    @property
+    def vertex_count(self) -> int:
+        return len(self.vertices)
+
+    @property
+    def tet_count(self) -> int:
+        return len(self.tets)
+
+    def vertex_from_source(self, index: int) -> int:
+        """This mesh's index of vertex ``index`` of the loaded file (see ``source_vertex_ids``);
+        -1 if the file's vertex is not part of the mesh or out of range."""
+        if self.source_vertex_ids is None:
+            return index if 0 <= index < self.vertex_count else -1
+        position = int(np.searchsorted(self.source_vertex_ids, index))
+        found = position < len(self.source_vertex_ids) and self.source_vertex_ids[position] == index
+        return position if found else -1
+
+    def vertices_in_box(self, lower, upper) -> np.ndarray:
+        """Indices of vertices inside the closed axis-aligned box [lower, upper] (metres)."""
+        lower = np.asarray(lower, dtype=np.float64)
+        upper = np.asarray(upper, dtype=np.float64)
+        inside = np.all((self.vertices >= lower) & (self.vertices <= upper), axis=1)
+        return np.flatnonzero(inside)
+
+
+def read_meshio(path: str | os.PathLike):
+    """A file read by meshio, its messages silenced; MeshError when missing or unreadable."""
+    import meshio
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise MeshError(f"{path}: no such file")
+    try:
+        # meshio prints its own messages and may call sys.exit() on a malformed file
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            return meshio.read(path)
+    except (Exception, SystemExit) as exc:  # ReadError, KeyError, ValueError, SystemExit, ...
+        detail = str(exc) if not isinstance(exc, SystemExit) else "malformed file"
+        raise MeshError(f"{path}: cannot read mesh: {detail}") from None
+
+
+class TetMesh(_VertexQueries):
     """A validated tetrahedral mesh in its rest configuration.
 
     Args:
@@ -177,14 +222,6 @@ class TetMesh:
             raise MeshError(f"{self.name}: element {j} {what} element {i} (both on the same side of face "
                             f"{unique[inverse[first[same[0]]]].tolist()})")
 
-    @property
-    def vertex_count(self) -> int:
-        return len(self.vertices)
-
-    @property
-    def tet_count(self) -> int:
-        return len(self.tets)
-
     def volumes(self) -> np.ndarray:
         """Rest volumes (m^3) of the elements, all positive."""
         return tet_volumes(self.vertices, self.tets)
@@ -209,22 +246,6 @@ class TetMesh:
         e = self.edges()
         return float(np.linalg.norm(self.vertices[e[:, 0]] - self.vertices[e[:, 1]], axis=1).mean())
 
-    def vertex_from_source(self, index: int) -> int:
-        """This mesh's index of vertex ``index`` of the loaded file (see ``source_vertex_ids``);
-        -1 if the file's vertex is not part of the mesh or out of range."""
-        if self.source_vertex_ids is None:
-            return index if 0 <= index < self.vertex_count else -1
-        position = int(np.searchsorted(self.source_vertex_ids, index))
-        found = position < len(self.source_vertex_ids) and self.source_vertex_ids[position] == index
-        return position if found else -1
-
-    def vertices_in_box(self, lower, upper) -> np.ndarray:
-        """Indices of vertices inside the closed axis-aligned box [lower, upper] (metres)."""
-        lower = np.asarray(lower, dtype=np.float64)
-        upper = np.asarray(upper, dtype=np.float64)
-        inside = np.all((self.vertices >= lower) & (self.vertices <= upper), axis=1)
-        return np.flatnonzero(inside)
-
     @classmethod
     def load(cls, path: str | os.PathLike) -> "TetMesh":
         """Read a tetrahedral mesh from any format meshio reads (.msh, .vtu, .vtk, .mesh, ...).
@@ -234,18 +255,8 @@ class TetMesh:
         the file's index of vertex ``i`` (``None`` when the numbering is the file's). A vertex
         no cell uses is an error.
         """
-        import meshio
-
         path = os.fspath(path)
-        if not os.path.exists(path):
-            raise MeshError(f"{path}: no such file")
-        try:
-            # meshio prints its own messages and may call sys.exit() on a malformed file
-            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                data = meshio.read(path)
-        except (Exception, SystemExit) as exc:  # ReadError, KeyError, ValueError, SystemExit, ...
-            detail = str(exc) if not isinstance(exc, SystemExit) else "malformed file"
-            raise MeshError(f"{path}: cannot read mesh: {detail}") from None
+        data = read_meshio(path)
         blocks = [block.data for block in data.cells if block.type == "tetra"]
         if not blocks:
             kinds = sorted({block.type for block in data.cells})

@@ -18,8 +18,6 @@ still fold made straighter until none does.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 from dataclasses import dataclass
 from typing import Callable
@@ -29,7 +27,7 @@ import scipy.sparse as sp
 
 from . import p2
 from .errors import MeshError
-from .mesh import TET_FACES, TetMesh
+from .mesh import TET_FACES, TetMesh, _VertexQueries, read_meshio
 
 #: Swapping corners 1 and 2 reorients an element; these are its ten nodes after the swap.
 _REORIENT = np.array([0, 2, 1, 3, 6, 5, 4, 7, 9, 8])
@@ -52,7 +50,7 @@ class QuadraticBoundary:
     vertex_ids: np.ndarray
 
 
-class QuadraticTetMesh:
+class QuadraticTetMesh(_VertexQueries):
     """A validated mesh of 10-node tetrahedra in its rest configuration.
 
     Args:
@@ -140,14 +138,6 @@ class QuadraticTetMesh:
         mesh.vertices, mesh.tets, mesh.corner_ids = vertices, tets, corner_ids
         return mesh
 
-    @property
-    def vertex_count(self) -> int:
-        return len(self.vertices)
-
-    @property
-    def tet_count(self) -> int:
-        return len(self.tets)
-
     def volumes(self) -> np.ndarray:
         """Exact rest volumes (m^3) of the curved elements."""
         return p2.volumes(self.vertices, self.tets)
@@ -160,21 +150,6 @@ class QuadraticTetMesh:
     def mean_edge_length(self) -> float:
         """Mean rest length (m) of the straight corner edges."""
         return self.linear().mean_edge_length()
-
-    def vertex_from_source(self, index: int) -> int:
-        """This mesh's index of node ``index`` of the loaded file (see ``source_vertex_ids``);
-        -1 if the file's node is not part of the mesh or out of range."""
-        if self.source_vertex_ids is None:
-            return index if 0 <= index < self.vertex_count else -1
-        position = int(np.searchsorted(self.source_vertex_ids, index))
-        found = position < len(self.source_vertex_ids) and self.source_vertex_ids[position] == index
-        return position if found else -1
-
-    def vertices_in_box(self, lower, upper) -> np.ndarray:
-        """Indices of nodes inside the closed axis-aligned box [lower, upper] (metres)."""
-        inside = np.all((self.vertices >= np.asarray(lower, float)) & (self.vertices <= np.asarray(upper, float)),
-                        axis=1)
-        return np.flatnonzero(inside)
 
     def boundary(self) -> QuadraticBoundary:
         """The boundary faces as outward oriented 6-node triangles."""
@@ -195,17 +170,8 @@ class QuadraticTetMesh:
     def load(cls, path: str | os.PathLike) -> "QuadraticTetMesh":
         """Read ``tetra10`` cells from any format meshio reads (other cells are ignored; nodes
         only they use are dropped)."""
-        import meshio
-
         path = os.fspath(path)
-        if not os.path.exists(path):
-            raise MeshError(f"{path}: no such file")
-        try:
-            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                data = meshio.read(path)
-        except (Exception, SystemExit) as exc:
-            raise MeshError(f"{path}: cannot read mesh: {exc if not isinstance(exc, SystemExit) else 'malformed'}") \
-                from None
+        data = read_meshio(path)
         blocks = [np.asarray(b.data, dtype=np.int64) for b in data.cells if b.type == "tetra10"]
         name = os.path.basename(path)
         if not blocks:

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SceneError, WcutError
+from .errors import MeshError, SceneError, WcutError
 from .io import check_writable
 
 try:
@@ -317,15 +317,11 @@ def build_mesh(scene: Scene):
 def _has_cells(path: Path, kind: str) -> bool:
     """Whether a mesh file holds cells of a meshio type (False when it cannot be read: the
     loader that follows reports why)."""
-    import contextlib
-    import io
-
-    import meshio
+    from .mesh import read_meshio
 
     try:
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            return any(block.type == kind for block in meshio.read(path).cells)
-    except (Exception, SystemExit):
+        return any(block.type == kind for block in read_meshio(path).cells)
+    except MeshError:
         return False
 
 
