@@ -37,7 +37,15 @@ def polar_rotations(points: np.ndarray, rest: np.ndarray, tets: np.ndarray) -> n
     """Polar rotations (M, 4, 3, 3) of ``F`` at the Gauss points (batched SVD, reflection
     removed by flipping the singular vector of the smallest singular value)."""
     G, _ = gauss_gradients(rest, tets)
-    F = np.einsum("mai,mgaj->mgij", points[tets], G)
+    return _rotations(_deformation_gradients(points, tets, G))
+
+
+def _deformation_gradients(points: np.ndarray, tets: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """``F`` (M, 4, 3, 3) at the Gauss points, from the rest shape gradients G."""
+    return np.einsum("mai,mgaj->mgij", points[tets], G)
+
+
+def _rotations(F: np.ndarray) -> np.ndarray:
     U, _, Vt = np.linalg.svd(F)
     R = U @ Vt
     neg = np.linalg.det(R) < 0
@@ -76,8 +84,8 @@ def internal_forces(points: np.ndarray, rest: np.ndarray, tets: np.ndarray, youn
                     poisson_ratio) -> np.ndarray:
     """Corotational elastic forces (N, 3) in N: ``f_a = -sum_g V_g R sigma(R^T F - I) grad N_a``."""
     G, Vg = gauss_gradients(rest, tets)
-    F = np.einsum("mai,mgaj->mgij", points[tets], G)
-    R = polar_rotations(points, rest, tets)
+    F = _deformation_gradients(points, tets, G)
+    R = _rotations(F)
     mu, lam = (np.broadcast_to(v, (len(tets),))[:, None, None, None] for v in
                lame_parameters(youngs_modulus, poisson_ratio))
     E = np.einsum("mgji,mgjk->mgik", R, F) - np.eye(3)  # R^T F - I

@@ -461,7 +461,7 @@ class TetTopology:
         added (t last in the element list of each of its faces), which later operators'
         choices depend on. Its unsewn faces without ``old`` stay unsewn (unlinking alone
         would sew them again, joining the fans of their vertices across a cut)."""
-        # _unlink then _link, fused: the same changes to vertex_tets, face_tets and unsewn in
+        # _unlink (inline, for its unsewn rule) then _link: the same changes to vertex_tets, face_tets and unsewn in
         # the same order (set iteration order, and so later choices, depend on it)
         tet = self.tets[t].tolist()
         vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn
@@ -477,15 +477,7 @@ class TetTopology:
         i = tet.index(old)
         tet[i] = new
         self.tets[t, i] = new
-        for v in tet:
-            vertex_tets[v].add(t)
-        keys = self.slot_face_keys[t] = _face_keys(tet)
-        for key in keys:
-            owners = face_tets.get(key)
-            if owners is None:
-                face_tets[key] = [t]
-            else:
-                owners.append(t)
+        self._link(t, tet)
 
     def drop_unused_vertices(self) -> int:
         """Remove vertices no element uses (after elements were deleted) and renumber the
