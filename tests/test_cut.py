@@ -534,3 +534,39 @@ def test_snapping_never_slides_one_lip_of_the_wound():
         cells = case[0]
         check_topology(topo, beam(*cells, size=(0.16, 0.04, 0.04)).volumes().sum())
 
+
+
+@pytest.mark.parametrize("epsilon", (0.0, 0.3))
+def test_curved_boundary_keeps_every_boundary_face_inside_an_original_one(cube, epsilon):
+    """With ``curved_boundary`` (the corners of quadratic elements) no boundary vertex snaps and
+    no boundary edge is flipped: every boundary face after the cut lies inside one boundary
+    face of before (so a curved surface over it would stay as it was)."""
+    plane = Plane([0.43, 0.5, 0.5], [1.0, 0.2, 0.1])
+    before = cube.boundary().triangles
+    flat, curved = TetTopology(cube), TetTopology(cube)
+    Cutter(flat, epsilon=epsilon).cut(plane)
+    stats = Cutter(curved, epsilon=epsilon, curved_boundary=True).cut(plane).stats
+    check_topology(curved, cube.volumes().sum())
+    assert_separated(curved.to_mesh(), plane)
+
+    def outside_original_faces(topo):
+        """Boundary faces (off the wound) not inside one boundary face of before."""
+        mesh = topo.to_mesh()
+        triangles = mesh.boundary().triangles
+        wound = (np.abs(plane.signed_distance(mesh.vertices))[triangles] < 1e-9).all(axis=1)
+        corners = cube.vertices[before]  # (F, 3, 3)
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        inside = np.ones((int((~wound).sum()), len(before)), dtype=bool)
+        for points in np.moveaxis(mesh.vertices[triangles[~wound]], 1, 0):  # each corner of each face
+            offset = points[:, None] - corners[None, :, 0]
+            inside &= np.abs(np.einsum("fj,cfj->cf", normal, offset)) <= 1e-9
+            for i in range(3):
+                edge = corners[:, (i + 1) % 3] - corners[:, i]
+                inside &= np.einsum("fj,cfj->cf", np.cross(normal, edge), points[:, None] - corners[None, :, i]) >= -1e-9
+        return int((~inside.any(axis=1)).sum())
+
+    assert outside_original_faces(curved) == 0
+    assert stats.bisections > 0
+    if epsilon > 0:  # the flat cutter does snap boundary vertices across faces here
+        assert outside_original_faces(flat) > 0

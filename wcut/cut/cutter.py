@@ -141,10 +141,14 @@ class Cutter:
             0 disables snapping except for crossings closer than ``MIN_SNAP``).
         mean_edge_length: the length scale of ``epsilon`` (m); by default the mean rest edge
             length of the mesh when the cutter is made, kept fixed through later cuts.
+        curved_boundary: the corners are those of curved (quadratic) elements whose boundary
+            is not flat (thesis 6.1.2, 6.1.4): a crossed boundary edge is always bisected,
+            never flipped, and no boundary vertex snaps. Either would replace boundary faces
+            by others spanning several curved faces, which changes the surface and the volume.
     """
 
     def __init__(self, topology: TetTopology, method: str = "paulus", epsilon: float = 0.1,
-                 mean_edge_length: float | None = None):
+                 mean_edge_length: float | None = None, curved_boundary: bool = False):
         if method not in METHODS:
             raise CutError(f"unknown cut method {method!r} (expected one of {', '.join(METHODS)})")
         if not (isinstance(epsilon, (int, float)) and 0.0 <= epsilon < 0.5):
@@ -152,6 +156,7 @@ class Cutter:
         self.topology = topology
         self.method = method
         self.epsilon = float(epsilon)
+        self.curved_boundary = bool(curved_boundary)
         if mean_edge_length is None:
             mean_edge_length = topology.to_mesh().mean_edge_length()
         self.mean_edge_length = float(mean_edge_length)
@@ -342,6 +347,8 @@ class Cutter:
         for _, v, other, s in sorted(moves):
             if v in snapped or other in snapped or v in sampling.on:
                 continue
+            if self.curved_boundary and self.topology.is_boundary_vertex(v):
+                continue  # it would leave the curved surface
             if not self._move_keeps_quality(v, other, s):
                 stats.refused.append(f"snapping vertex {v} would make a sliver")
                 continue
@@ -422,12 +429,13 @@ class Cutter:
         for (a, b), (t, _) in sampling.edges.items():
             if not topo.edge_tets(a, b):
                 continue
-            try:
-                remove_edge(topo, a, b)
-                stats.general_flips += 1
-                continue
-            except TopologyError:
-                pass
+            if not (self.curved_boundary and topo.is_boundary_edge(a, b)):
+                try:
+                    remove_edge(topo, a, b)
+                    stats.general_flips += 1
+                    continue
+                except TopologyError:
+                    pass
             try:
                 m, _ = bisect_edge(topo, a, b, t)
             except TopologyError as exc:

@@ -265,6 +265,11 @@ class TetTopology:
                 polygon = polygon[-1:] + polygon[:-1]
         return ring, polygon, closed
 
+    def is_boundary_edge(self, a: int, b: int) -> bool:
+        """Whether edge (a, b) lies on a boundary face (unsewn faces are not counted)."""
+        return any(len(self.face_tets[face_key(a, b, c)]) == 1
+                   for t in self.edge_tets(a, b) for c in self.tets[t].tolist() if c != a and c != b)
+
     def is_boundary_vertex(self, v: int) -> bool:
         for t in self.vertex_tets[v]:
             tet = self.tets[t]

@@ -329,16 +329,11 @@ def move_vertex(topo: TetTopology, v: int, parents, weights, *, feature_angle: f
     if len(normals):
         step = target - topo.vertex_data[v, REST]
         if np.abs(normals @ step).max() > 1e-12 * (np.linalg.norm(step) + 1e-300):
-            along = len(parents) == 2 and v in parents and _is_boundary_edge(topo, *parents)
+            along = len(parents) == 2 and v in parents and topo.is_boundary_edge(*parents)
             smooth = (normals @ normals.T).min() > np.cos(np.radians(feature_angle))
             if not (along and smooth and feature_angle > 0.0):
                 raise TopologyError(f"moving boundary vertex {v} would take it off its boundary")
     topo.set_vertex(v, list(parents), weights)
-
-
-def _is_boundary_edge(topo: TetTopology, a: int, b: int) -> bool:
-    ring = topo.edge_tets(a, b)
-    return any(len(topo.face_tets[face_key(a, b, c)]) == 1 for t in ring for c in topo.tet(t) if c not in (a, b))
 
 
 def _boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
