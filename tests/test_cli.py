@@ -215,6 +215,34 @@ def test_cut_command_writes_mesh_and_report(tmp_path):
             assert abs(data["volume_after"] - data["volume_before"]) < 1e-9 * data["volume_before"]
 
 
+def test_cut_command_order_2(tmp_path):
+    """``--order 2``: linear input is made quadratic (straight edges), tetra10 input is cut as
+    it is (here the curved organ); the output holds tetra10 cells and the report counts all
+    nodes, with volumes by quadrature."""
+    import json
+
+    import meshio
+
+    from wcut.cli import main
+    from wcut.mesh import beam
+    from wcut.quadratic import QuadraticTetMesh
+
+    linear = tmp_path / "beam.vtu"
+    beam(6, 2, 2, size=(0.3, 0.1, 0.1)).save(linear)
+    organ = Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "organ_p2.vtu"
+    for source, plane in ((linear, "0.151,0.05,0.05,1,0.1,0"), (organ, "0.0,0.01,0.005,0.1,1,0.3")):
+        out, report = tmp_path / "cut.vtu", tmp_path / "r.json"
+        assert main(["cut", str(source), "-o", str(out), "--plane", plane, "--order", "2",
+                     "--report", str(report)]) == 0
+        data = json.loads(report.read_text())
+        assert [block.type for block in meshio.read(out).cells] == ["tetra10"]
+        cut = QuadraticTetMesh.load(out)
+        assert (cut.vertex_count, cut.tet_count) == (data["nodes_after"], data["elements_after"])
+        assert data["order"] == 2 and data["components"] == 2
+        assert abs(data["volume_after"] - data["volume_before"]) < 1e-6 * data["volume_before"]
+        assert cut.volumes().sum() == pytest.approx(data["volume_after"], rel=1e-12)
+
+
 def test_cut_command_bad_input_exits_2(tmp_path, capsys):
     from wcut.cli import main
     from wcut.mesh import beam
@@ -223,8 +251,8 @@ def test_cut_command_bad_input_exits_2(tmp_path, capsys):
     beam(2, 2, 2).save(source)
     out = tmp_path / "cut.vtu"
     cases = [(["--plane", "5,0,0,1,0,0"], "misses the mesh"), (["--plane", "1,2"], "six numbers"),
-             (["--surface", str(tmp_path / "none.obj")], "none.obj"), (["--plane", "0.5,0,0,1,0,0", "--order", "2"],
-                                                                       "order 2")]
+             (["--surface", str(tmp_path / "none.obj")], "none.obj"),
+             (["--plane", "5,0,0,1,0,0", "--order", "2"], "misses the mesh")]
     for extra, message in cases:
         assert main(["cut", str(source), "-o", str(out)] + extra) == 2
         err = capsys.readouterr().err

@@ -130,8 +130,6 @@ def test_bad_values_name_the_key(tmp_path, write_scene, extra, key, words):
         ('[mesh]\ngenerator = "beam"\ncells = [2, 2, 2.0]\n', "mesh.cells[2]", "expected an integer"),
         ("name = 'x'\n", "mesh", "missing section"),
         ('[mesh]\ngenerator = "beam"\norder = 3\n', "mesh.order", "1 (linear) or 2 (quadratic)"),
-        ('[mesh]\ngenerator = "beam"\norder = 2\n[cut]\nframes = [0, 1]\nblade = [[[0,0,0],[0,1,0]], '
-         '[[0,0,1],[0,1,1]]]\n', "cut", "not supported yet"),
     ],
 )
 def test_bad_mesh_section(tmp_path, write_scene, mesh_table, key, words):

@@ -43,26 +43,31 @@ def test_every_shipped_scene_loads(path):
 
 
 def test_the_shipped_scenes_are_the_expected_ones():
-    assert {p.stem for p in SCENES.glob("*.toml")} >= {"beam_sag", "beam_cut", "organ_cut"}
+    assert {p.stem for p in SCENES.glob("*.toml")} >= {"beam_sag", "beam_cut", "organ_cut", "beam_cut_p2",
+                                                       "organ_cut_p2"}
 
 
 # ---------------------------------------------------------------------------------------------
 # beam_cut: the thesis's figure 5.10
 
 
-def test_beam_cut_separates_the_beam_into_two_halves(tmp_path):
+@pytest.mark.parametrize("name", ("beam_cut", "beam_cut_p2"))
+def test_beam_cut_separates_the_beam_into_two_halves(tmp_path, name):
     """The whole run (60 frames): the blade goes down through the plane x = 0.0809 m, 0.9 mm from
     a plane of nodes, over frames 10 to 40; the beam (clamped at both ends) is in exactly two
-    pieces, each clamped end in its own, with about half the volume each (measured 50.6% / 49.4%)."""
-    scene = load_scene(SCENES / "beam_cut.toml")
+    pieces, each clamped end in its own, with about half the volume each (measured 50.6% / 49.4%).
+    beam_cut_p2 is the same with quadratic elements (thesis 6.1.4)."""
+    scene = load_scene(SCENES / f"{name}.toml")
     volume = build_mesh(scene).volumes().sum()
     assert volume == pytest.approx(0.16 * 0.04 * 0.04, rel=1e-9)
-    result, blade = run_recording_blade(scene, tmp_path / "beam_cut.usdc")
+    result, blade = run_recording_blade(scene, tmp_path / f"{name}.usdc")
     assert result.frames == 60 and result.cut_events >= 2  # measured 7
     topo = blade.topology
     check_topology(topo, volume)  # flat boundary: the volume is kept exactly
+    after = blade.mesh()
+    assert (result.nodes, result.elements) == (after.vertex_count, after.tet_count)
+    assert after.volumes().sum() == pytest.approx(volume, rel=1e-9)
     mesh = topo.to_mesh()
-    assert (result.nodes, result.elements) == (mesh.vertex_count, mesh.tet_count)
     assert mesh.tet_count > build_mesh(scene).tet_count  # remeshed, not only snapped
     labels = connected_components(mesh)
     assert labels.max() == 1
@@ -146,3 +151,26 @@ def test_organ_cut_writes_finite_frames(organ):
     # extent along y grows by 0.76 mm)
     assert frames[-1][:, 2].min() == pytest.approx(frames[0][:, 2].min(), abs=1e-7)
     assert np.ptp(frames[-1][:, 1]) > np.ptp(frames[0][:, 1]) + 2e-4
+
+
+# ---------------------------------------------------------------------------------------------
+# organ_cut_p2: the coarse curved organ, cut
+
+
+def test_organ_cut_p2_opens_the_curved_organ_and_keeps_its_volume(tmp_path):
+    """The whole run: the blade's arc crosses the coarse quadratic organ; every curved element
+    stays unfolded, the volume (by quadrature) is kept, the organ stays one piece with a wound
+    along the blade, and every frame is finite."""
+    from wcut.quadratic import folded_elements
+
+    scene = load_scene(SCENES / "organ_cut_p2.toml")
+    before = build_mesh(scene)
+    result, blade = run_recording_blade(scene, tmp_path / "organ_cut_p2.usdc")
+    after = blade.mesh()
+    assert result.cut_events >= 3 and blade.refused == 0
+    assert not folded_elements(after.vertices, after.tets)[0].any()
+    assert after.volumes().sum() == pytest.approx(before.volumes().sum(), rel=1e-9)
+    assert after.vertex_count > before.vertex_count + 100
+    assert connected_components(after.linear()).max() == 0  # an incision, not a separation
+    frames = usd_points(result.output, scene.name)
+    assert len(frames) == 61 and all(np.isfinite(points).all() for points in frames)

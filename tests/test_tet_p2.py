@@ -199,10 +199,17 @@ def test_dynamic_run_stays_finite_and_tets_lock_less_than_p1():
     assert tips[1] < tips[0] - 0.01
 
 
-def test_rebuild_of_a_quadratic_model_is_refused(straight):
+def test_rebuild_needs_a_mesh_of_the_same_order(straight):
+    """A quadratic model rebuilds from a quadratic mesh (tests/test_cut_quadratic.py) only."""
+    from wcut.cut import Plane
+    from wcut.cut.quadratic import QuadraticCutter
+
     model = Model(straight)
-    with pytest.raises(ModelError, match="quadratic"):
-        model.rebuild(straight, None)
+    result = QuadraticCutter(straight).cut(Plane(straight.vertices.mean(axis=0), [1.0, 0.2, 0.1]))
+    with pytest.raises(ModelError, match="order 1 for a model of order 2"):
+        model.rebuild(result.mesh.linear(), result.change)
+    rebuilt, _ = model.rebuild(result.mesh, result.change)
+    assert rebuilt.tet_order == 2 and rebuilt.tet_count == result.mesh.tet_count
 
 
 def test_corner_interpolation_of_attachments(curved):

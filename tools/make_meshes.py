@@ -5,8 +5,8 @@ Needs gmsh's Python API, which is NOT a dependency of wcut (nothing in the packa
 tests imports it); use a throwaway environment:
 
     python3 -m venv /tmp/meshvenv
-    /tmp/meshvenv/bin/pip install gmsh meshio numpy
-    /tmp/meshvenv/bin/python tools/make_meshes.py            # writes both meshes
+    /tmp/meshvenv/bin/pip install gmsh meshio numpy scipy
+    /tmp/meshvenv/bin/python tools/make_meshes.py            # writes every mesh
     /tmp/meshvenv/bin/python tools/make_meshes.py --only beam371
 
 (gmsh's wheel may need a few X/GL shared libraries on a bare Linux:
@@ -24,8 +24,14 @@ It writes, relative to the repository root (``--out DIR`` to change):
   x = 0, y and z centred on 0. Its edges are split uniformly (9 segments along x, 2 across),
   the faces and the volume are meshed unstructured (MeshAdapt, Delaunay) at a characteristic
   length tuned to give 371 tetrahedra and 130 vertices.
+- ``scenes/meshes/beam712.vtu`` and ``beam4621.vtu``: the same box at the two finer
+  resolutions of thesis table 6.4 (745 and 4663 tetrahedra; the thesis has 712 and 4621).
+- ``scenes/meshes/organ_p2.vtu``: the organ at a coarse size (about 280 elements) as 10-node
+  tetrahedra (``tetra10``), the thesis's coarse quadratic liver (6.1.4): boundary edge nodes on
+  the smooth organ surface, interior ones relaxed, by wcut's ``to_quadratic`` (so this one
+  imports wcut from the repository and needs scipy).
 
-Each file holds only the ``tetra`` cells (positively oriented, no unused points), written
+Each file holds only the ``tetra`` (or ``tetra10``) cells (positively oriented, no unused points), written
 by meshio as binary, zlib-compressed VTU. The output is deterministic for a given gmsh
 version (one thread, fixed ``Mesh.RandomSeed``); the files shipped were made with gmsh
 4.15.2. The script prints counts and quality figures (dihedral angles, radius ratio).
@@ -61,11 +67,13 @@ ORGAN_LOBES = (
 )
 #: Organ mesh size (m): ~4000 tetrahedra.
 ORGAN_MESH_SIZE = 0.0095
-#: Beam: box size (m), edge subdivision (along x, across) and characteristic length, tuned
-#: to 371 tetrahedra and 130 vertices (thesis: 371 and 131).
+#: Coarse organ (the quadratic "coarse liver" of thesis 6.1.4): mesh size (m), ~280 tetrahedra.
+ORGAN_COARSE_MESH_SIZE = 0.025
+#: Beam: box size (m), and per mesh the edge subdivision (along x, across) and characteristic
+#: length (m), tuned to the element counts of thesis 5.2.2 and table 6.4: 371 (130 vertices;
+#: thesis 371 and 131), 745 (thesis 712) and 4663 (thesis 4621).
 BEAM_SIZE = (0.16, 0.04, 0.04)
-BEAM_EDGE_SEGMENTS = (9, 2)
-BEAM_MESH_SIZE = 0.022
+BEAMS = {"beam371": ((9, 2), 0.022), "beam712": ((11, 2), 0.02), "beam4621": ((24, 6), 0.0068)}
 
 
 def icosphere(level: int) -> tuple[np.ndarray, np.ndarray]:
@@ -166,7 +174,19 @@ def compact(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return points, tets
 
 
-def mesh_organ() -> tuple[np.ndarray, np.ndarray]:
+def mesh_organ_p2() -> tuple[np.ndarray, np.ndarray]:
+    """The coarse organ as 10-node elements: boundary edge nodes on the smooth organ surface,
+    interior ones relaxed (wcut's ``to_quadratic``, thesis 6.1.1)."""
+    sys.path.insert(0, ROOT)
+    from wcut.mesh import TetMesh
+    from wcut.quadratic import to_quadratic
+
+    points, tets = mesh_organ(ORGAN_COARSE_MESH_SIZE)
+    quadratic = to_quadratic(TetMesh(points, tets, name="organ_p2"), organ_surface())
+    return quadratic.vertices, quadratic.tets
+
+
+def mesh_organ(size: float = ORGAN_MESH_SIZE) -> tuple[np.ndarray, np.ndarray]:
     gmsh = _gmsh_start("organ")
     points, faces = organ_surface()
     surface = gmsh.model.addDiscreteEntity(2)
@@ -179,25 +199,26 @@ def mesh_organ() -> tuple[np.ndarray, np.ndarray]:
     gmsh.model.geo.addVolume([loop])
     gmsh.model.geo.synchronize()
     try:
-        return _gmsh_mesh_volume(gmsh, ORGAN_MESH_SIZE, algorithm_2d=6, algorithm_3d=1)
+        return _gmsh_mesh_volume(gmsh, size, algorithm_2d=6, algorithm_3d=1)
     finally:
         gmsh.finalize()
 
 
-def mesh_beam() -> tuple[np.ndarray, np.ndarray]:
-    gmsh = _gmsh_start("beam371")
+def mesh_beam(segments: tuple[int, int] = BEAMS["beam371"][0], size: float = BEAMS["beam371"][1]
+              ) -> tuple[np.ndarray, np.ndarray]:
+    gmsh = _gmsh_start("beam")
     lx, ly, lz = BEAM_SIZE
     gmsh.model.occ.addBox(0.0, -ly / 2, -lz / 2, lx, ly, lz)
     gmsh.model.occ.synchronize()
-    # fix only the edge subdivision (9 segments along x, 2 across); faces and volume are
-    # meshed unstructured (MeshAdapt surfaces, Delaunay volume)
+    # fix only the edge subdivision (segments along x, across); faces and volume are meshed
+    # unstructured (MeshAdapt surfaces, Delaunay volume)
     for _, curve in gmsh.model.getEntities(1):
         start, end = gmsh.model.getBoundary([(1, curve)])
         pa, pb = gmsh.model.getValue(0, abs(start[1]), []), gmsh.model.getValue(0, abs(end[1]), [])
         along_x = abs(pa[0] - pb[0]) > 1e-9
-        gmsh.model.mesh.setTransfiniteCurve(curve, BEAM_EDGE_SEGMENTS[0 if along_x else 1] + 1)
+        gmsh.model.mesh.setTransfiniteCurve(curve, segments[0 if along_x else 1] + 1)
     try:
-        return _gmsh_mesh_volume(gmsh, BEAM_MESH_SIZE, algorithm_2d=1, algorithm_3d=1)
+        return _gmsh_mesh_volume(gmsh, size, algorithm_2d=1, algorithm_3d=1)
     finally:
         gmsh.finalize()
 
@@ -240,6 +261,7 @@ def radius_ratios(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
 
 
 def quality(points: np.ndarray, tets: np.ndarray) -> dict:
+    tets = tets[:, :4]  # the corners of quadratic elements
     dih = dihedral_angles(points, tets)
     rr = radius_ratios(points, tets)
     return {
@@ -256,12 +278,13 @@ def quality(points: np.ndarray, tets: np.ndarray) -> dict:
 
 
 def write_vtu(path: str, points: np.ndarray, tets: np.ndarray) -> None:
-    """Binary, zlib-compressed VTU with only the tetra cells; written atomically."""
+    """Binary, zlib-compressed VTU with only the tetra (or tetra10) cells; written atomically."""
     import meshio
 
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     tmp = path + ".tmp.vtu"
-    meshio.write(tmp, meshio.Mesh(points, [("tetra", tets.astype(np.int64))]), binary=True, compression="zlib")
+    cell = "tetra10" if tets.shape[1] == 10 else "tetra"
+    meshio.write(tmp, meshio.Mesh(points, [(cell, tets.astype(np.int64))]), binary=True, compression="zlib")
     os.replace(tmp, path)
 
 
@@ -314,7 +337,7 @@ def render_organ(vtu: str, png: str) -> None:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", default=os.path.join(ROOT, "scenes", "meshes"), help="output folder")
-    parser.add_argument("--only", choices=("organ", "beam371"), help="write one mesh only")
+    parser.add_argument("--only", choices=("organ", "organ_p2", *BEAMS), help="write one mesh only")
     parser.add_argument("--png", help="also render the organ's surface to this PNG (needs matplotlib)")
     parser.add_argument("--render-only", action="store_true", help="with --png: render the existing organ.vtu")
     args = parser.parse_args(argv)
@@ -322,7 +345,8 @@ def main(argv=None) -> int:
         import gmsh
 
         print(f"gmsh {gmsh.__version__}")
-        makers = {"organ": mesh_organ, "beam371": mesh_beam}
+        makers = {"organ": mesh_organ, "organ_p2": mesh_organ_p2,
+                  **{name: (lambda spec=spec: mesh_beam(*spec)) for name, spec in BEAMS.items()}}
         for name, make in makers.items():
             if args.only and name != args.only:
                 continue

@@ -425,13 +425,16 @@ class Model:
         every element takes the material of its parent element. A vertex is fixed when all the
         vertices it is interpolated from are. Attachments follow their vertices. The state's
         positions and velocities are interpolated with the change's weights (exact for linear
-        elements), external forces stay on surviving vertices, rotations are inherited from
-        the parent element (the warm start of the polar decomposition).
+        elements, and for quadratic ones cut by :class:`wcut.cut.QuadraticCutter`, whose
+        weights are the shape functions), external forces stay on surviving vertices,
+        rotations are inherited from the parent element (the warm start of the polar
+        decomposition; per Gauss point for quadratic elements).
 
         Returns ``(model, state)``; the solver must be made again for the new model.
         """
-        if self.tet_order != 1:
-            raise ModelError("rebuild: topological changes of quadratic models are not supported yet")
+        if getattr(mesh, "order", 1) != self.tet_order:
+            raise ModelError(f"rebuild: a mesh of order {getattr(mesh, 'order', 1)} for a model of order "
+                             f"{self.tet_order}")
         if change.vertex_count_before != self.particle_count or change.element_count_before != self.tet_count:
             raise ModelError(f"rebuild: the change is from a mesh of {change.vertex_count_before} vertices and "
                              f"{change.element_count_before} elements, the model has {self.particle_count} "
@@ -441,10 +444,13 @@ class Model:
         parent, changed = change.element_parent, change.element_rest_changed
         reparented, touched = _reparented(parent, self.tet_count), _touched_vertices(change)
         rest = mesh.vertices.astype(np.float32).astype(np.float64)
-        poses = _take(self.tet_poses.numpy(), parent, reparented)
-        volume = _take(self.tet_rest_volume.numpy(), parent, reparented).astype(np.float64)
-        if changed.any():
-            poses[changed], volume[changed] = _rest_frames(rest, mesh.tets[changed])
+        if self.tet_order == 2:  # the Gauss points' volume shares are not kept: all anew (cheap)
+            poses, volume = _quadratic_rest_frames(rest, mesh.tets)
+        else:
+            poses = _take(self.tet_poses.numpy(), parent, reparented)
+            volume = _take(self.tet_rest_volume.numpy(), parent, reparented).astype(np.float64)
+            if changed.any():
+                poses[changed], volume[changed] = _rest_frames(rest, mesh.tets[changed])
         rho, E, nu = (_take(a.numpy(), parent, reparented).astype(np.float64)
                       for a in (self.tet_density, self.tet_youngs_modulus, self.tet_poisson_ratio))
         fixed_mask = self._fixed_after(change, touched)

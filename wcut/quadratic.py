@@ -36,6 +36,15 @@ _REORIENT = np.array([0, 2, 1, 3, 6, 5, 4, 7, 9, 8])
 _FACE_EDGE_NODES = np.array([[5, 9, 8], [7, 9, 6], [4, 8, 7], [6, 5, 4]])
 
 
+def folded_elements(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which 10-node elements fold: ``det J`` at a Gauss point or a node is at most 1e-6 of
+    the element's volume (a straight element has ``det J = 6 V`` everywhere). Returns the
+    mask (M,) and the smallest ``det J`` (M,) (m^3 per unit reference volume)."""
+    at_gauss, at_nodes = p2.jacobian_determinants(points, tets)
+    worst = np.minimum(at_gauss.min(axis=1), at_nodes.min(axis=1))
+    return worst <= 1e-6 * p2.volumes(points, tets), worst
+
+
 @dataclass(frozen=True)
 class QuadraticBoundary:
     """The boundary of a quadratic mesh as 6-node triangles (outward oriented).
@@ -120,14 +129,12 @@ class QuadraticTetMesh(_VertexQueries):
             raise MeshError(f"{self.name}: inconsistent edge nodes: {what}")
 
     def _check_jacobians(self) -> None:
-        at_gauss, at_nodes = p2.jacobian_determinants(self.vertices, self.tets)
-        scale = p2.volumes(self.vertices, self.tets)  # det J ~ 6 V for a straight element
-        bad = np.flatnonzero((at_gauss.min(axis=1) <= 1e-6 * scale) | (at_nodes.min(axis=1) <= 1e-6 * scale))
+        folded, worst = folded_elements(self.vertices, self.tets)
+        bad = np.flatnonzero(folded)
         if len(bad):
             e = bad[0]
             raise MeshError(f"{self.name}: curved element {e} {self.tets[e].tolist()} folds: det J is "
-                            f"{min(at_gauss[e].min(), at_nodes[e].min()):.3g} at a Gauss point or node "
-                            f"({len(bad)} such elements)")
+                            f"{worst[e]:.3g} at a Gauss point or node ({len(bad)} such elements)")
 
     @classmethod
     def trusted(cls, vertices: np.ndarray, tets: np.ndarray, corner_ids: np.ndarray, *,
@@ -354,6 +361,26 @@ def to_quadratic(mesh: TetMesh, surface=None, *, max_halvings: int = 20) -> Quad
         motion[np.unique(element_edges[folding])] = 0.0
         points = np.concatenate([mesh.vertices, midpoints + motion])
     return QuadraticTetMesh(points, tets, name=mesh.name)
+
+
+def load_mesh(path: str | os.PathLike, order: int = 1):
+    """A mesh file (anything meshio reads) as elements of ``order``: a
+    :class:`~wcut.mesh.TetMesh` for 1; for 2 a :class:`QuadraticTetMesh`, the file's
+    ``tetra10`` cells as they are, or its linear cells made quadratic with straight edges
+    (:func:`to_quadratic`)."""
+    if order == 2 and _has_cells(path, "tetra10"):
+        return QuadraticTetMesh.load(path)
+    mesh = TetMesh.load(path)
+    return to_quadratic(mesh) if order == 2 else mesh
+
+
+def _has_cells(path, kind: str) -> bool:
+    """Whether a mesh file holds cells of a meshio type (False when it cannot be read: the
+    loader that follows reports why)."""
+    try:
+        return any(block.type == kind for block in read_meshio(path).cells)
+    except MeshError:
+        return False
 
 
 def _harmonic_extension(element_edges: np.ndarray, motion: np.ndarray, fixed: np.ndarray) -> np.ndarray:

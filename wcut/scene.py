@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import MeshError, SceneError, WcutError
+from .errors import SceneError, WcutError
 from .io import check_writable
 
 try:
@@ -206,8 +206,6 @@ def _parse(raw: dict, path: Path) -> Scene:
         raise SceneError(f"mesh.order: expected 1 (linear) or 2 (quadratic), got {mesh['order']}")
     if not 0 <= sections["output"]["subdivision"] <= 5:
         raise SceneError(f"output.subdivision: must be in 0..5, got {sections['output']['subdivision']}")
-    if mesh["order"] == 2 and "cut" in raw:
-        raise SceneError("cut: cutting quadratic elements (mesh.order = 2) is not supported yet")
     forces = sections["loads"].pop("force")
     if not isinstance(forces, list):
         raise SceneError("loads.force: expected an array of tables ([[loads.force]])")
@@ -300,29 +298,14 @@ def blade_path(cut: dict) -> np.ndarray:
 def build_mesh(scene: Scene):
     """The scene's mesh: loaded (path relative to the scene file) or generated; a
     :class:`~wcut.quadratic.QuadraticTetMesh` when ``mesh.order = 2``."""
-    from .mesh import TetMesh, beam
-    from .quadratic import QuadraticTetMesh, to_quadratic
+    from .mesh import beam
+    from .quadratic import load_mesh, to_quadratic
 
     m = scene.mesh
     if m["path"] is not None:
-        path = scene.path.parent / m["path"]
-        if m["order"] == 2 and _has_cells(path, "tetra10"):
-            return QuadraticTetMesh.load(path)
-        mesh = TetMesh.load(path)
-    else:
-        mesh = beam(*m["cells"], size=m["size"], origin=m["origin"], tets_per_hex=m["tets_per_hex"])
+        return load_mesh(scene.path.parent / m["path"], m["order"])
+    mesh = beam(*m["cells"], size=m["size"], origin=m["origin"], tets_per_hex=m["tets_per_hex"])
     return to_quadratic(mesh) if m["order"] == 2 else mesh
-
-
-def _has_cells(path: Path, kind: str) -> bool:
-    """Whether a mesh file holds cells of a meshio type (False when it cannot be read: the
-    loader that follows reports why)."""
-    from .mesh import read_meshio
-
-    try:
-        return any(block.type == kind for block in read_meshio(path).cells)
-    except MeshError:
-        return False
 
 
 def build_model(scene: Scene, mesh=None, device=None):
@@ -447,7 +430,7 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
             if change is not None:
                 cut_events += 1
                 targets = control.attachment_target.numpy()
-                model, state = model.rebuild(blade.topology.to_mesh(), change, state)
+                model, state = model.rebuild(blade.mesh(), change, state)
                 next_state, control = model.state(), model.control()
                 next_state.particle_f.assign(state.particle_f)
                 control.attachment_target.assign(targets)
@@ -493,12 +476,18 @@ class _Blade:
 
     def __init__(self, cut: dict, mesh):
         from .cut import Cutter, SweptBlade
+        from .cut.quadratic import QuadraticCutter
         from .topology import TetTopology
 
         self.first = cut["frames"][0]
         self.sweep = SweptBlade(blade_path(cut))
-        self.topology = TetTopology(mesh)
-        self.cutter = Cutter(self.topology, method=cut["method"], epsilon=cut["epsilon"])
+        if getattr(mesh, "order", 1) == 2:  # the corners are cut, the nodes placed after
+            self.quadratic, self._linear = QuadraticCutter(mesh, method=cut["method"], epsilon=cut["epsilon"]), None
+        else:
+            self.quadratic, self._linear = None, Cutter(TetTopology(mesh), method=cut["method"],
+                                                        epsilon=cut["epsilon"])
+        #: increments a quadratic cut refused (an element would fold): they are cut again with the next
+        self.refused = 0
         length = float(np.linalg.norm(self.sweep.blade[:, 1] - self.sweep.blade[:, 0], axis=1).max())
         # a sample every half edge: the mapped blade follows the body's bending
         self.sample_count = int(np.clip(np.ceil(2.0 * length / self.cutter.mean_edge_length), 2, 64)) + 1
@@ -511,9 +500,12 @@ class _Blade:
         k = frame - self.first
         if not 0 <= k < self.sweep.frame_count:
             return None
-        n = self.topology.vertex_count
-        self.topology.positions[:] = state.particle_q.numpy()[:n]
-        self.topology.velocities[:] = state.particle_qd.numpy()[:n]
+        if self.quadratic is not None:
+            self.quadratic.set_state(state.particle_q.numpy(), state.particle_qd.numpy())
+        else:
+            n = self.topology.vertex_count
+            self.topology.positions[:] = state.particle_q.numpy()[:n]
+            self.topology.velocities[:] = state.particle_qd.numpy()[:n]
         before = self._mapped
         self._mapped = self.topology.rest_points(self.sweep.samples(k, self.sample_count))
         if before is None:
@@ -521,8 +513,31 @@ class _Blade:
         increment = strip(before, self._mapped)
         if increment is None:
             return None
-        change = self.cutter.cut(increment, progressive=True, rest=True).change
+        if self.quadratic is None:
+            change = self.cutter.cut(increment, progressive=True, rest=True).change
+        else:
+            from .cut import CutError
+
+            try:
+                change = self.quadratic.cut(increment, progressive=True, rest=True).change
+            except CutError:
+                self.refused += 1
+                return None
         return None if change.is_empty else change
+
+    @property
+    def cutter(self):
+        """The corner mesh's :class:`~wcut.cut.Cutter`."""
+        return self.quadratic.cutter if self.quadratic is not None else self._linear
+
+    @property
+    def topology(self):
+        """The corner mesh being cut."""
+        return self.cutter.topology
+
+    def mesh(self):
+        """The mesh after the last cut."""
+        return self.quadratic.mesh if self.quadratic is not None else self.topology.to_mesh()
 
 
 class _NoBar:

@@ -77,6 +77,11 @@ FEATURE_ANGLE = 30.0
 #: to a vertex than this would only make needle elements (thesis 5.1.4).
 MIN_SNAP = 1e-3
 
+#: With ``curved_boundary``, a boundary vertex this close (relative) to a crossing on one of
+#: its edges holds the cut (:meth:`Cutter._hold`), whatever ``epsilon``: farther, the bent cut
+#: could fail to close.
+CURVED_HOLD = 0.1
+
 
 
 class CutError(WcutError):
@@ -328,7 +333,30 @@ class Cutter:
         snapped = self._snap(sampling, threshold, stats)
         if snapped:
             sampling = self.sample(surface, slots)
+        if self.curved_boundary:
+            self._hold(sampling, CURVED_HOLD * self.mean_edge_length)
         return sampling, set(sampling.on) | snapped
+
+    def _hold(self, sampling: _Sampling, threshold: float) -> None:
+        """On a curved boundary, where a vertex may not snap: a boundary vertex within
+        ``threshold`` (m) of the plane of a crossing on one of its edges is taken as on the
+        surface, and the crossings of its edges are dropped. The cut bends through the vertex
+        instead of leaving a needle next to it (which the curving of the boundary would fold)."""
+        x = self.coordinates()
+        held = set()
+        for (a, b), (t, n) in sampling.edges.items():
+            h = (1.0 - t) * x[a] + t * x[b]
+            for v in (a, b):
+                if v not in sampling.on and abs(float(np.dot(n, x[v] - h))) < threshold \
+                        and self.topology.is_boundary_vertex(v):
+                    held.add(v)
+        if not held:
+            return
+        sampling.on |= held
+        sampling.edges = {e: c for e, c in sampling.edges.items() if e[0] not in held and e[1] not in held}
+        tets = self.topology.tets
+        sampling.cut_slots = [t for t in sampling.cut_slots
+                              if any(_edge(int(tets[t][i]), int(tets[t][j])) in sampling.edges for i, j in TET_EDGES)]
 
     def _snap(self, sampling: _Sampling, threshold: float, stats: CutStats) -> set[int]:
         """Snap the nearest vertex of each crossed edge onto its crossing when its distance to
