@@ -1008,3 +1008,101 @@ def test_retarget_keeps_unsewn_faces_without_the_vertex_unsewn():
     topo.retarget(t, v, w)
     assert key in topo.unsewn and len(topo.face_tets[key]) == 2 and t in topo.face_tets[key]
     assert w in topo.tet(t) and v not in topo.tet(t)
+
+
+# ---------------------------------------------------------------------------------------------
+# the operators' shortcuts give what the full computations give
+
+
+def test_quality_is_remembered_until_the_shape_changes():
+    """``TetTopology.quality`` is ``tet_quality`` of the element's vertices in slot order, to
+    the last bit: after the operators store it, after a vertex moves and after rest positions
+    are written and synced."""
+    topo = make_topology(two_tets())
+
+    def assert_fresh():
+        rest = topo.rest_tuples
+        for t in topo.live_tets().tolist():
+            assert topo.quality(t) == tet_quality(*[rest[v] for v in topo.tet(t)])
+
+    assert_fresh()
+    flip23(topo, (0, 1, 2), quality_drop=0.1)
+    assert_fresh()
+    p, _ = split_tet(topo, int(topo.live_tets()[0]), [0.1, 0.2, 0.3, 0.4])
+    assert_fresh()
+    move_vertex(topo, p, [p, 3], [0.9, 0.1])
+    assert_fresh()
+    topo.vertex_data[: topo.vertex_count, REST] *= 1.5
+    topo.sync_rest_tuples()
+    assert_fresh()
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(height=st.floats(1e-7, 1e-2), offset=st.floats(0.0, 1e7), scale=st.floats(1e-3, 1e2),
+       tilt=st.floats(-1.0, 1.0))
+def test_check_skips_float32_qualities_only_where_they_cannot_matter(height, offset, scale, tilt):
+    """``_check`` computes the float32 quality only where the float64 one is not clearly above
+    the threshold: it returns (or raises) exactly what computing them all does, also for flat
+    elements far from the origin, where rounding to float32 matters."""
+    from wcut.topology.operators import _check, _check_all, _extra_points
+
+    topo = make_topology(two_tets())
+    base = np.array([offset, -0.5 * offset, 0.25 * offset])
+    corners = base + scale * np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.3, 1.0, 0.0], [tilt, 0.2, height]])
+    extra = {-(i + 1): corners[i] for i in range(4)}
+    tets = [[0, 1, 2, 3], [-1, -2, -3, -4]]
+
+    def outcome(check, *args):
+        qualities: list = []
+        try:
+            return check(topo, tets, "check", *args, qualities), qualities
+        except TopologyError as exc:
+            return str(exc)
+
+    assert outcome(_check, extra) == outcome(_check_all, *_extra_points(extra))
+
+
+def test_containing_finds_the_element_the_full_search_finds():
+    """The parents of a general flip's and a 2-3 flip's elements are those of the exhaustive
+    search (the first removed element of largest smallest barycentric coordinate), however
+    the search is started."""
+    from wcut.topology import operators
+
+    calls = []
+    containing = operators._containing
+
+    def recording(topo, removed, added, hints=None):
+        result = containing(topo, removed, added, hints)
+        calls.append(result == _containing_everywhere(topo, removed, added)
+                     == containing(topo, removed, added, [len(removed) - 1] * len(added)))
+        return result
+
+    operators._containing = recording
+    try:
+        for n in (3, 4, 5, 6, 7):
+            remove_edge(make_topology(ring(n)), 0, 1)
+        flip23(make_topology(two_tets()), (0, 1, 2))
+    finally:
+        operators._containing = containing
+    assert len(calls) == 6 and all(calls)
+
+
+def _containing_everywhere(topo: TetTopology, removed, added) -> list[int]:
+    """The exhaustive search of ``_containing``: every removed element, same arithmetic."""
+    from wcut.topology.operators import _barycentric_frame
+
+    rest = topo.rest_tuples
+    frames = [_barycentric_frame(*[rest[v] for v in topo.tet(t)]) for t in removed]
+    parents = []
+    for tet in added:
+        p = [rest[v] for v in tet]
+        c = [(p[0][i] + p[1][i] + p[2][i] + p[3][i]) / 4.0 for i in range(3)]
+        best, best_min = 0, -np.inf
+        for i, (r0, r1, r2, det, c3) in enumerate(frames):
+            d = [c[0] - c3[0], c[1] - c3[1], c[2] - c3[2]]
+            x = [(r[0] * d[0] + r[1] * d[1] + r[2] * d[2]) / det for r in (r0, r1, r2)]
+            smallest = min(x[0], x[1], x[2], 1.0 - (x[0] + x[1] + x[2]))
+            if smallest > best_min:
+                best, best_min = i, smallest
+        parents.append(removed[best])
+    return parents

@@ -32,7 +32,6 @@ surface, then disconnects; ``delete`` removes every crossed element; ``bielser``
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,13 +40,16 @@ from ..errors import WcutError
 from ..mesh import TET_FACES
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
                         flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, tet_qualities,
-                        tet_quality, unsew_face)
+                        unsew_face)
 from .surface import CutSurface, Plane, TriangleSurface
 
 METHODS = ("paulus", "bielser", "snap", "delete")
 
 #: Pairs of local vertex indices of the six edges of a tetrahedron.
 TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+
+#: ``TET_FACES`` as tuples, for plain-Python loops.
+_TET_FACES = tuple(tuple(face) for face in TET_FACES.tolist())
 
 #: Distance (relative to the mean rest edge length) within which a vertex is on the surface.
 ON_SURFACE_TOL = 1e-6
@@ -425,14 +427,15 @@ class Cutter:
             if real:
                 marked.add(p)
         faces = {}
-        tet_faces = TET_FACES.tolist()
+        crossed = sampling.edges
         for tet in cut_tets:
-            for local in tet_faces:
-                tri = [tet[i] for i in local]
-                if reused.intersection(tri):
+            for i, j, k in _TET_FACES:
+                a, b, c = tet[i], tet[j], tet[k]
+                if reused and (a in reused or b in reused or c in reused):
                     continue  # its vertex on the surface already joins the polygon
-                if any(_edge(tri[i], tri[j]) in sampling.edges for i, j in ((0, 1), (1, 2), (0, 2))):
-                    faces[face_key(*tri)] = None
+                if ((a, b) if a < b else (b, a)) in crossed or ((b, c) if b < c else (c, b)) in crossed \
+                        or ((a, c) if a < c else (c, a)) in crossed:
+                    faces[face_key(a, b, c)] = None
         for key in faces:
             if key not in topo.face_tets:
                 continue
@@ -542,7 +545,10 @@ class Cutter:
         would halve the point's smallest weight (the operators' quality check would refuse
         flatter elements)."""
         p = weights @ corners
-        origin, normal = (a[0] for a in surface.tangent_planes(p[None]))
+        if type(surface) is Plane:  # its tangent plane, without building (1, 3) arrays
+            origin, normal = surface.point, surface.normal
+        else:
+            origin, normal = (a[0] for a in surface.tangent_planes(p[None]))
         if abs(float(normal @ (p - origin))) <= self.tolerance:
             return weights  # on S already (S flat here)
         span = None
@@ -593,8 +599,8 @@ class Cutter:
         """Weights (over the sorted face vertices) of the point where a face is split, and
         whether it is on the cut: the barycentre of its crossings and on-vertices."""
         points = self._crossing_weights(list(key), sampling.edges, sampling.on)
-        if len(points) >= 2:
-            return self._onto_surface(surface, self.coordinates()[list(key)], np.mean(points, axis=0)), True
+        if len(points) >= 2:  # _mean: np.mean(points, axis=0), without its overhead
+            return self._onto_surface(surface, self.coordinates()[list(key)], np.array(_mean(points))), True
         if not points:
             return None
         return 0.5 * np.asarray(points[0]) + 0.5 / 3.0, False
@@ -608,12 +614,11 @@ class Cutter:
         for v in marked:
             elements |= topo.vertex_tets[v]
         faces = set()
-        for t in elements:
-            on = sorted(u for u in topo.tets[t].tolist() if u in marked)
-            if len(on) == 3:
-                faces.add(tuple(on))
-            elif len(on) == 4:
-                faces.update(itertools.combinations(on, 3))
+        keys_of = topo.slot_face_keys
+        for t in elements:  # the faces of t with three vertices on the cut
+            for key in keys_of[t]:
+                if key[0] in marked and key[1] in marked and key[2] in marked:
+                    faces.add(key)
         keys = [key for key in sorted(faces) if len(topo.face_tets.get(key, ())) == 2]
         opened = []
         if keys:
@@ -648,11 +653,10 @@ class Cutter:
 
         sliver_quality = CRUMB_QUALITY * REGULAR_QUALITY
         quality: dict[int, float] = {}
-        rest = topo.rest_tuples
 
         def sliver(t):
-            if t not in quality:  # tet_quality: tet_qualities' arithmetic without numpy's overhead
-                quality[t] = tet_quality(*[rest[v] for v in topo.tet(t)])
+            if t not in quality:  # tet_quality's value (remembered by the topology since the check)
+                quality[t] = topo.quality(t)
             return quality[t] < sliver_quality
 
         def crumb_from(start):

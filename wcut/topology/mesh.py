@@ -26,6 +26,7 @@ index is stable while it lives and the cost of a change follows the elements it 
 
 from __future__ import annotations
 
+import math
 import struct
 
 import numpy as np
@@ -71,6 +72,30 @@ def point_tuples(points) -> tuple[list[tuple[float, float, float]], list[tuple[f
     as_is = [tuple(p) for p in rows.tolist()]
     rounded = [tuple(p) for p in rows.astype(np.float32).astype(np.float64).tolist()]
     return as_is, rounded
+
+
+def tet_quality(p0, p1, p2, p3) -> float:
+    """Quality (volume / longest edge^3) of one tetrahedron, corners as (x, y, z) floats.
+
+    The arithmetic of :func:`wcut.topology.operators.tet_qualities`, operation for operation,
+    so the two agree to the last bit (use this one for a few elements: it avoids numpy's
+    per-call overhead). Four coincident corners give NaN (0/0), as numpy does."""
+    x0, y0, z0 = p0
+    x1, y1, z1 = p1
+    x2, y2, z2 = p2
+    x3, y3, z3 = p3
+    ax, ay, az = x1 - x0, y1 - y0, z1 - z0
+    bx, by, bz = x2 - x0, y2 - y0, z2 - z0
+    cx, cy, cz = x3 - x0, y3 - y0, z3 - z0
+    volume = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)) / 6.0
+    dx, dy, dz = x2 - x1, y2 - y1, z2 - z1
+    ex, ey, ez = x3 - x1, y3 - y1, z3 - z1
+    fx, fy, fz = x3 - x2, y3 - y2, z3 - z2
+    longest2 = max(ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz, cx * cx + cy * cy + cz * cz,
+                   dx * dx + dy * dy + dz * dz, ex * ex + ey * ey + ez * ez, fx * fx + fy * fy + fz * fz)
+    if longest2 == 0.0:
+        return math.nan
+    return volume / (longest2 * math.sqrt(longest2))
 
 
 _FLOAT32_XYZ = struct.Struct("3f")
@@ -135,6 +160,9 @@ class TetTopology:
         #: per slot, the keys of its element's four faces (:func:`_face_keys`): kept by
         #: ``_link`` so that unlinking and the adjacency walks never sort vertices again
         self.slot_face_keys: list[tuple | None] = [None] * len(self.tets)
+        #: per slot, the element's float64 rest quality (:func:`tet_quality` of its vertices in
+        #: slot order) once computed, else None: see :meth:`quality`
+        self._slot_quality: list[float | None] = [None] * len(self.tets)
         for t, tet in enumerate(mesh.tets.tolist()):
             self._link(t, tet)
         self.unsewn: set[tuple[int, int, int]] = set()
@@ -178,6 +206,17 @@ class TetTopology:
         """Signed rest volume (m^3) of element slot t."""
         rest = self.rest_tuples
         return signed_volume(*[rest[v] for v in self.tets[t].tolist()])
+
+    def quality(self, t: int) -> float:
+        """Quality (volume / longest edge^3, float64, rest configuration) of live element slot
+        t: :func:`tet_quality` of its vertices in slot order, to the last bit. Remembered per
+        slot until the element or one of its vertices' rest positions changes."""
+        q = self._slot_quality[t]
+        if q is None:
+            rest = self.rest_tuples
+            a, b, c, d = self.tets[t].tolist()
+            q = self._slot_quality[t] = tet_quality(rest[a], rest[b], rest[c], rest[d])
+        return q
 
     def neighbors(self, t: int, key: tuple[int, int, int]) -> list[int]:
         """The other element across face ``key`` of element t ([] on the boundary or unsewn)."""
@@ -381,39 +420,81 @@ class TetTopology:
             self.tets = np.concatenate([self.tets, np.zeros_like(self.tets)])
             self.alive = np.concatenate([self.alive, np.zeros_like(self.alive)])
             self.slot_face_keys.extend([None] * (len(self.tets) - len(self.slot_face_keys)))
+            self._slot_quality.extend([None] * (len(self.tets) - len(self._slot_quality)))
         self.slot_count += 1
         return self.slot_count - 1
 
-    def replace_tets(self, removed: list[int], added: list[list[int]], parents: list[int] | None = None) -> list[int]:
+    def replace_tets(self, removed: list[int], added: list[list[int]], parents: list[int] | None = None,
+                     qualities: list[float] | None = None) -> list[int]:
         """Replace elements ``removed`` by ``added`` (vertex lists, positively oriented).
 
         The primitive every operator ends with; it checks nothing, the operators check first.
         New element i lies in removed element ``parents[i]`` (default ``removed[0]``), whose
-        origin in the journal it inherits.
+        origin in the journal it inherits. ``qualities``, when given, are the new elements'
+        :func:`tet_quality` (the operator computed them to check them), remembered for
+        :meth:`quality`.
         """
+        # _unlink and _link inline (this runs thousands of times per cut): the same changes to
+        # vertex_tets, face_tets and unsewn in the same order (later choices depend on it)
         journal = self._journal
         parents = parents or [removed[0]] * len(added)
-        origins = [journal.origin_of(t) for t in parents] if journal else [-1] * len(added)
+        vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn
+        face_keys_of, quality_of = self.slot_face_keys, self._slot_quality
         alive = self.alive
+        if journal:
+            origin = journal.origin
+            origins = [origin.get(t, t) for t in parents]
+            removed_base = journal.removed_base
         for t in removed:
-            self._unlink(t)
+            keys = face_keys_of[t]
+            first = keys[0]  # the three largest vertices; the smallest opens the second key
+            vertex_tets[keys[1][0]].discard(t)
+            vertex_tets[first[0]].discard(t)
+            vertex_tets[first[1]].discard(t)
+            vertex_tets[first[2]].discard(t)
+            for key in keys:
+                owners = face_tets[key]
+                owners.remove(t)
+                if len(owners) < 2:
+                    if not owners:
+                        del face_tets[key]
+                    if unsewn:  # most of the time nothing is unsewn: skip the hash of the key
+                        unsewn.discard(key)
             alive[t] = False
+            quality_of[t] = None
             if journal:
-                journal.removed(t)
+                if t in origin:
+                    del origin[t]
+                else:
+                    removed_base.add(t)
         free = self._free
         free.extend(reversed(removed))
         slots = []
-        for tet, origin in zip(added, origins):
+        tets = self.tets
+        for i, tet in enumerate(added):
             if free:
                 t = free.pop()
             else:
                 t = self._new_slot()  # may grow (reallocate) tets and alive
-                alive = self.alive
-            self.tets[t] = tet
+                alive, tets = self.alive, self.tets
+            tets[t] = tet
             alive[t] = True
-            self._link(t, tet)
+            a, b, c, d = tet
+            vertex_tets[a].add(t)
+            vertex_tets[b].add(t)
+            vertex_tets[c].add(t)
+            vertex_tets[d].add(t)
+            keys = face_keys_of[t] = _face_keys(tet)
+            for key in keys:
+                owners = face_tets.get(key)
+                if owners is None:
+                    face_tets[key] = [t]
+                else:
+                    owners.append(t)
+            if qualities is not None:
+                quality_of[t] = qualities[i]
             if journal:
-                journal.added(t, origin)
+                origin[t] = origins[i]
             slots.append(t)
         return slots
 
@@ -437,6 +518,7 @@ class TetTopology:
         rest, rest32 = self._rest_tuples_of(v)
         self.rest_tuples.append(rest)
         self.rest_tuples32.append(rest32)
+        self._bound_rest(rest)
         if self._journal:
             self._journal.vertex_from(v, parents, weights, origin_tet)
         return v
@@ -448,11 +530,29 @@ class TetTopology:
             self._journal.vertex_from(v, parents, weights, -1)
         self.vertex_data[v] = self.interpolate(parents, weights)
         self.rest_tuples[v], self.rest_tuples32[v] = self._rest_tuples_of(v)
+        self._bound_rest(self.rest_tuples[v])
+        quality_of = self._slot_quality
+        for t in self.vertex_tets[v]:  # its elements changed shape
+            quality_of[t] = None
 
     def sync_rest_tuples(self) -> None:
         """Rebuild ``rest_tuples`` and ``rest_tuples32`` from ``vertex_data`` (O(N)): for code
         that wrote rest positions into ``vertex_data`` itself."""
-        self.rest_tuples, self.rest_tuples32 = point_tuples(self.vertex_data[: self.vertex_count, REST])
+        rest = self.vertex_data[: self.vertex_count, REST]
+        self.rest_tuples, self.rest_tuples32 = point_tuples(rest)
+        bound = float(np.abs(rest).max()) if len(rest) else 0.0
+        #: an upper bound of the rest coordinates' magnitudes (m), inf if one is not finite:
+        #: it bounds how far rounding to float32 moves a vertex (the operators' checks)
+        self.rest_bound = bound if math.isfinite(bound) else math.inf
+        if hasattr(self, "_slot_quality"):
+            self._slot_quality = [None] * len(self._slot_quality)
+
+    def _bound_rest(self, p) -> None:
+        """Keep ``rest_bound`` above the coordinates of rest position p."""
+        x, y, z = p
+        b = max(abs(x), abs(y), abs(z))
+        if not b <= self.rest_bound:  # larger, or NaN
+            self.rest_bound = b if b == b and b != math.inf else math.inf
 
     def _rest_tuples_of(self, v: int) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """Vertex v's rest position as a float tuple, and rounded to float32."""
@@ -466,23 +566,38 @@ class TetTopology:
         added (t last in the element list of each of its faces), which later operators'
         choices depend on. Its unsewn faces without ``old`` stay unsewn (unlinking alone
         would sew them again, joining the fans of their vertices across a cut)."""
-        # _unlink (inline, for its unsewn rule) then _link: the same changes to vertex_tets, face_tets and unsewn in
-        # the same order (set iteration order, and so later choices, depend on it)
+        # The changes of unlinking then linking t, in the same order per set and list (set
+        # iteration order, and so later choices, depend on it): t leaves and joins again the
+        # sets of its vertices; t moves to the end of its faces without ``old``; its faces
+        # with ``old`` go (no longer unsewn), those with ``new`` come.
         tet = self.tets[t].tolist()
         vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn
         for v in tet:
             vertex_tets[v].discard(t)
-        for key in self.slot_face_keys[t]:
-            owners = face_tets[key]
-            owners.remove(t)
-            if not owners:
-                del face_tets[key]
-            if old in key:  # this face goes away (t leaves it, at most one element stays)
-                unsewn.discard(key)
         i = tet.index(old)
         tet[i] = new
         self.tets[t, i] = new
-        self._link(t, tet)
+        for v in tet:
+            vertex_tets[v].add(t)
+        for key in self.slot_face_keys[t]:
+            owners = face_tets[key]
+            if old in key:
+                owners.remove(t)
+                if not owners:
+                    del face_tets[key]
+                unsewn.discard(key)
+            elif len(owners) == 2 and owners[0] == t:
+                owners[0], owners[1] = owners[1], t
+        keys = self.slot_face_keys[t] = _face_keys(tet)
+        for key in keys:
+            if new in key:
+                owners = face_tets.get(key)
+                if owners is None:
+                    face_tets[key] = [t]
+                else:
+                    owners.append(t)
+        if self.rest_tuples[old] != self.rest_tuples[new]:
+            self._slot_quality[t] = None
 
     def drop_unused_vertices(self) -> int:
         """Remove vertices no element uses (after elements were deleted) and renumber the
@@ -564,15 +679,22 @@ class _Journal:
 
     def vertex_from(self, v: int, parents, weights, origin_tet: int) -> None:
         expr: dict[int, float] = {}
+        expression = self.expression
         for p, w in zip(parents, weights.tolist()):
             if w == 0.0:
                 continue
-            for q, wq in self.expression.get(p, {p: 1.0}).items():
-                expr[q] = expr.get(q, 0.0) + w * wq
-        self.expression[v] = expr
+            of_p = expression.get(p)
+            if of_p is None:  # a vertex of the base mesh: itself with weight 1 (w * 1.0 is w)
+                expr[p] = expr.get(p, 0.0) + w
+            else:
+                for q, wq in of_p.items():
+                    expr[q] = expr.get(q, 0.0) + w * wq
+        expression[v] = expr
         if origin_tet >= 0:
-            self.vertex_origin[v] = self.origin_of(origin_tet)
-        self.reshaped.update(self.topo.vertex_tets[v])  # a moved vertex reshapes its elements
+            self.vertex_origin[v] = self.origin.get(origin_tet, origin_tet)
+        around = self.topo.vertex_tets[v]
+        if around:  # a moved vertex reshapes its elements (a new one has none yet)
+            self.reshaped.update(around)
 
 
 def _closest_on_triangles(p, a, b, c) -> tuple[np.ndarray, np.ndarray]:

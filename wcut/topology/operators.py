@@ -15,13 +15,12 @@ every operator conserves the total rest volume exactly up to rounding.
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
 
 from ..mesh import DEGENERATE_TOL
-from .mesh import REST, TetTopology, TopologyError, face_key, rounded32, signed_volume
+from .mesh import REST, TetTopology, TopologyError, face_key, rounded32, signed_volume, tet_quality
 
 #: Up to this many elements :func:`tet_qualities` loops in plain floats: numpy's per-call
 #: overhead (some 40 array operations) exceeds the arithmetic of a few elements.
@@ -29,30 +28,6 @@ SMALL_BATCH = 16
 
 #: The faces of an element (as in ``wcut.mesh.TET_FACES``) as tuples, for plain-Python loops.
 _FACES = ((1, 2, 3), (0, 3, 2), (0, 1, 3), (0, 2, 1))
-
-
-def tet_quality(p0, p1, p2, p3) -> float:
-    """Quality (volume / longest edge^3) of one tetrahedron, corners as (x, y, z) floats.
-
-    The arithmetic of :func:`tet_qualities`, operation for operation, so the two agree to the
-    last bit (use this one for a few elements: it avoids numpy's per-call overhead). Four
-    coincident corners give NaN (0/0), as numpy does."""
-    x0, y0, z0 = p0
-    x1, y1, z1 = p1
-    x2, y2, z2 = p2
-    x3, y3, z3 = p3
-    ax, ay, az = x1 - x0, y1 - y0, z1 - z0
-    bx, by, bz = x2 - x0, y2 - y0, z2 - z0
-    cx, cy, cz = x3 - x0, y3 - y0, z3 - z0
-    volume = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)) / 6.0
-    dx, dy, dz = x2 - x1, y2 - y1, z2 - z1
-    ex, ey, ez = x3 - x1, y3 - y1, z3 - z1
-    fx, fy, fz = x3 - x2, y3 - y2, z3 - z2
-    longest2 = max(ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz, cx * cx + cy * cy + cz * cz,
-                   dx * dx + dy * dy + dz * dz, ex * ex + ey * ey + ez * ez, fx * fx + fy * fy + fz * fz)
-    if longest2 == 0.0:
-        return math.nan
-    return volume / (longest2 * math.sqrt(longest2))
 
 
 _quality = tet_quality  # the short name the operators use
@@ -85,19 +60,98 @@ def _smaller(a: float, b: float) -> float:
     return a if a < b or a != a else b
 
 
-def _check(topo: TetTopology, tets: list[list[int]], what: str, extra: dict | None = None) -> float:
+#: Largest displacement of a coordinate of magnitude M rounded to float32: M * 2^-24 (to
+#: nearest; the subnormal range adds at most 2^-150).
+_F32_STEP = 2.0**-24
+
+#: :func:`_check` skips the float32 qualities of elements whose float64 quality q and longest
+#: edge L satisfy ``rho = _F32_REACH * M / L <= 0.01`` and ``q > _FAST_TOL + 0.5051 rho``,
+#: M bounding the coordinates' magnitudes. Rounding moves each corner by at most
+#: r = sqrt(3) M 2^-24, each edge vector by 2r, so 6 |dV| <= (L + 2r)^3 - L^3 (the
+#: determinant is multilinear, Hadamard's bound for each term) and the rounded element's
+#: quality is at least q - ((1 + s)^3 - 1) / 6 - DEGENERATE_TOL ((1 + s)^3 - 1) with s = 2r/L:
+#: above DEGENERATE_TOL when q > DEGENERATE_TOL (1 + s)^3 + ((1 + s)^3 - 1) / 6, implied (for
+#: s <= 0.01, with twice s for margin over the float64 rounding of both qualities, some 1e-15)
+#: by the condition above.
+_F32_REACH = 4.0 * math.sqrt(3.0) * _F32_STEP
+_FAST_TOL = 1.0304 * DEGENERATE_TOL + 1e-12
+
+
+def _check(topo: TetTopology, tets: list[list[int]], what: str, extra: dict | None = None,
+           qualities: list | None = None) -> float:
     """Refuse unless every tetrahedron of ``tets`` is well shaped in the rest configuration;
     return the smallest float64 quality among them (for an operator's own criteria, so that
-    it need not compute the qualities again).
+    it need not compute the qualities again). ``qualities``, a list, receives each
+    element's float64 quality (for :meth:`TetTopology.replace_tets` to remember).
 
     ``extra`` maps a vertex not yet in the mesh (index -1, -2, ...) to its rest position.
-    The worst element is the first of smallest quality, or the first NaN (as ``np.argmin``)."""
+    The worst element is the first of smallest quality, or the first NaN (as ``np.argmin``).
+
+    The float32 qualities are only computed where the float64 quality is not clearly above
+    the threshold (see ``_F32_REACH``): the outcome is the same as computing all of them."""
+    rest = topo.rest_tuples
+    bound = topo.rest_bound
+    if extra:
+        extra64, extra32 = _extra_points(extra)
+        for x, y, z in extra64.values():
+            b = max(abs(x), abs(y), abs(z))
+            if not b <= bound:
+                bound = b if b == b else math.inf
+    else:
+        extra64 = extra32 = None
+    reach = _F32_REACH * bound
+    out = [] if qualities is None else qualities
+    start = len(out)
+    worst64 = math.inf
+    sqrt = math.sqrt
+    for tet in tets:
+        if extra64 is None:
+            a, b, c, d = tet
+            p0, p1, p2, p3 = rest[a], rest[b], rest[c], rest[d]
+        else:
+            p0, p1, p2, p3 = [extra64[v] if v < 0 else rest[v] for v in tet]
+        # tet_quality's arithmetic, keeping the longest edge
+        x0, y0, z0 = p0
+        x1, y1, z1 = p1
+        x2, y2, z2 = p2
+        x3, y3, z3 = p3
+        ax, ay, az = x1 - x0, y1 - y0, z1 - z0
+        bx, by, bz = x2 - x0, y2 - y0, z2 - z0
+        cx, cy, cz = x3 - x0, y3 - y0, z3 - z0
+        volume = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)) / 6.0
+        dx, dy, dz = x2 - x1, y2 - y1, z2 - z1
+        ex, ey, ez = x3 - x1, y3 - y1, z3 - z1
+        fx, fy, fz = x3 - x2, y3 - y2, z3 - z2
+        longest2 = max(ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz, cx * cx + cy * cy + cz * cz,
+                       dx * dx + dy * dy + dz * dz, ex * ex + ey * ey + ez * ez, fx * fx + fy * fy + fz * fz)
+        if not longest2 > 0.0:  # coincident corners (NaN quality)
+            break
+        length = sqrt(longest2)
+        q = volume / (longest2 * length)
+        if not q > _FAST_TOL:
+            break
+        rho = reach / length
+        if not (rho <= 0.01 and q > _FAST_TOL + 0.5051 * rho):
+            break
+        out.append(q)
+        if q < worst64:
+            worst64 = q
+    else:
+        return worst64
+    del out[start:]
+    return _check_all(topo, tets, what, extra64, extra32, out)
+
+
+def _check_all(topo: TetTopology, tets: list[list[int]], what: str, extra64, extra32, out: list) -> float:
+    """:func:`_check` computing every element's float32 quality too."""
     rest, rest32 = topo.rest_tuples, topo.rest_tuples32
-    extra64, extra32 = _extra_points(extra) if extra else ({}, {})
+    if extra64 is None:
+        extra64 = extra32 = {}
     worst, worst_q, worst64 = 0, math.inf, math.inf
     for i, tet in enumerate(tets):
         # The simulation sees float32 rest positions: the element must survive that rounding.
         q64 = _quality(*[extra64[v] if v < 0 else rest[v] for v in tet])
+        out.append(q64)
         q = _smaller(q64, _quality(*[extra32[v] if v < 0 else rest32[v] for v in tet]))
         if q != q:
             worst, worst_q = i, q
@@ -138,23 +192,48 @@ def _point(topo: TetTopology, parents, weights) -> np.ndarray:
     return np.asarray(weights, float) @ topo.vertex_data.take(parents, axis=0)[:, REST]
 
 
-def _containing(topo: TetTopology, removed: list[int], added: list[list[int]]) -> list[int]:
+#: A centroid whose smallest barycentric coordinate in a removed element exceeds this is
+#: inside that element, whose coordinates' rounding errors are far smaller (below 1e-4 for
+#: elements of quality above DEGENERATE_TOL sharing a face or an edge): every other removed
+#: element (disjoint interiors) gets a smaller coordinate, so the search stops there.
+_INSIDE = 1e-3
+
+
+def _containing(topo: TetTopology, removed: list[int], added: list[list[int]],
+                hints: list[int] | None = None) -> list[int]:
     """For each new element, the removed element that contains its centroid (the one whose
     smallest barycentric coordinate of it is largest, the first such): its parent in the
-    change record.
+    change record. ``hints[i]``, when given, is the index in ``removed`` where the search for
+    new element i starts (it stops at an element clearly containing the centroid, see
+    ``_INSIDE``; the answer does not depend on the hint); else where the previous one's
+    search ended (a 2-3 flip's new elements all lie in the element whose apex is farther
+    from the face).
 
     Barycentric coordinates by Cramer's rule in plain floats. They may differ in the last bits
     from a matrix inverse's, which can only matter where a centroid lies on a face two removed
     elements share, and then either is a right parent."""
     rest = topo.rest_tuples
-    frames = [_barycentric_frame(*[rest[v] for v in topo.tets[t].tolist()]) for t in removed]
+    tets = topo.tets
+    frames = []
+    for t in removed:
+        c0, c1, c2, c3 = tets[t].tolist()
+        frames.append(_barycentric_frame(rest[c0], rest[c1], rest[c2], rest[c3]))
+    count = len(frames)
     parents = []
-    for tet in added:
-        p0, p1, p2, p3 = (rest[v] for v in tet)
+    found = 0
+    for n, tet in enumerate(added):
+        a, b, c, d = tet
+        p0, p1, p2, p3 = rest[a], rest[b], rest[c], rest[d]
         cx, cy, cz = ((p0[0] + p1[0] + p2[0] + p3[0]) / 4.0, (p0[1] + p1[1] + p2[1] + p3[1]) / 4.0,
                       (p0[2] + p1[2] + p2[2] + p3[2]) / 4.0)
-        best, best_min = 0, -math.inf
-        for i, (r0, r1, r2, det, c3) in enumerate(frames):
+        start = hints[n] if hints is not None else found
+        smallest_of = [0.0] * count
+        found = -1
+        for step in range(count):
+            i = start + step
+            if i >= count:
+                i -= count
+            r0, r1, r2, det, c3 = frames[i]
             # the smallest barycentric coordinate of the centroid in removed element i, inline:
             # a general flip asks for some fifty of these
             px, py, pz = cx - c3[0], cy - c3[1], cz - c3[2]
@@ -162,9 +241,17 @@ def _containing(topo: TetTopology, removed: list[int], added: list[list[int]]) -
             x1 = (r1[0] * px + r1[1] * py + r1[2] * pz) / det
             x2 = (r2[0] * px + r2[1] * py + r2[2] * pz) / det
             smallest = min(x0, x1, x2, 1.0 - (x0 + x1 + x2))
-            if smallest > best_min:
-                best, best_min = i, smallest
-        parents.append(removed[best])
+            if smallest > _INSIDE:
+                found = i
+                break
+            smallest_of[i] = smallest
+        if found < 0:  # no clear container: the first of largest smallest coordinate
+            best, best_min = 0, -math.inf
+            for i, smallest in enumerate(smallest_of):
+                if smallest > best_min:
+                    best, best_min = i, smallest
+            found = best
+        parents.append(removed[found])
     return parents
 
 
@@ -193,9 +280,10 @@ def split_tet(topo: TetTopology, t: int, weights) -> tuple[int, list[int]]:
     weights = _weights(weights, 4, f"split 1-4 of element {t}")
     data = topo.interpolate(tet, weights)  # the new vertex's attributes: checked, then stored
     added = [_substitute(tet, v, -1) for v in tet]
-    _check(topo, added, f"split 1-4 of element {t}", {-1: data[REST]})
+    qualities: list[float] = []
+    _check(topo, added, f"split 1-4 of element {t}", {-1: data[REST]}, qualities)
     p = topo.add_vertex(tet, weights, origin_tet=t, data=data)
-    return p, topo.replace_tets([t], [_substitute(s, -1, p) for s in added])
+    return p, topo.replace_tets([t], [_substitute(s, -1, p) for s in added], qualities=qualities)
 
 
 def split_face(topo: TetTopology, key: tuple[int, int, int], weights) -> tuple[int, list[int]]:
@@ -209,9 +297,11 @@ def split_face(topo: TetTopology, key: tuple[int, int, int], weights) -> tuple[i
     weights = _weights(weights, 3, f"split of face {key}")
     data = topo.interpolate(list(key), weights)
     added = [_substitute(topo.tet(t), v, -1) for t in owners for v in key]
-    _check(topo, added, f"split of face {key}", {-1: data[REST]})
+    qualities: list[float] = []
+    _check(topo, added, f"split of face {key}", {-1: data[REST]}, qualities)
     p = topo.add_vertex(list(key), weights, origin_tet=owners[0], data=data)
-    return p, topo.replace_tets(owners, [_substitute(s, -1, p) for s in added], [t for t in owners for _ in key])
+    return p, topo.replace_tets(owners, [_substitute(s, -1, p) for s in added], [t for t in owners for _ in key],
+                                qualities)
 
 
 def flip23(topo: TetTopology, key: tuple[int, int, int], quality_drop: float | None = None) -> list[int]:
@@ -235,13 +325,14 @@ def flip23(topo: TetTopology, key: tuple[int, int, int], quality_drop: float | N
     # All three must lie on the same side of their edge d-e: same orientation of (u, w).
     if len({v > 0 for v in volumes}) != 1:
         raise TopologyError(f"flip 2-3 of face {key}: edge ({d}, {e}) does not cross the face")
-    worst = _check(topo, added, f"flip 2-3 of face {key}")
+    qualities: list[float] = []
+    worst = _check(topo, added, f"flip 2-3 of face {key}", None, qualities)
     if quality_drop is not None:
-        before = _smaller(_quality(*[rest[v] for v in tet0]), _quality(*[rest[v] for v in tet1]))
+        before = _smaller(topo.quality(t0), topo.quality(t1))
         if not worst >= quality_drop * before:
             raise TopologyError(f"flip 2-3 of face {key}: its worst element would have {worst / before:.2g} "
                                 f"of the quality of the worse element it replaces")
-    return topo.replace_tets([t0, t1], added, _containing(topo, [t0, t1], added))
+    return topo.replace_tets([t0, t1], added, _containing(topo, [t0, t1], added), qualities)
 
 
 def bisect_edge(topo: TetTopology, a: int, b: int, s: float) -> tuple[int, list[int]]:
@@ -257,9 +348,11 @@ def bisect_edge(topo: TetTopology, a: int, b: int, s: float) -> tuple[int, list[
         tet = topo.tet(t)
         added += [_substitute(tet, a, -1), _substitute(tet, b, -1)]
     data = topo.interpolate([a, b], [1 - s, s])
-    _check(topo, added, f"bisection of edge ({a}, {b})", {-1: data[REST]})
+    qualities: list[float] = []
+    _check(topo, added, f"bisection of edge ({a}, {b})", {-1: data[REST]}, qualities)
     m = topo.add_vertex([a, b], [1 - s, s], origin_tet=around[0], data=data)
-    return m, topo.replace_tets(around, [_substitute(t, -1, m) for t in added], [t for t in around for _ in (0, 1)])
+    return m, topo.replace_tets(around, [_substitute(t, -1, m) for t in added], [t for t in around for _ in (0, 1)],
+                                qualities)
 
 
 def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool = False,
@@ -279,26 +372,26 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     m = len(polygon)
     if m < 3:
         raise TopologyError(f"general flip of edge ({a}, {b}): only {m} vertices around it")
-    # quality of the two tetrahedra (i, k, j, a) and (i, j, k, b) over every triangle i < j < k
-    corners, rest_a, rest_b = [rest[v] for v in polygon], rest[a], rest[b]
-    q = {(i, j, k): _smaller(_quality(corners[i], corners[k], corners[j], rest_a),
-                             _quality(corners[i], corners[j], corners[k], rest_b))
-         for i, j, k in itertools.combinations(range(m), 3)}
-    best: dict[tuple[int, int], tuple[float, int]] = {}
+    q = _polygon_qualities([rest[v] for v in polygon], rest[a], rest[b])
+    # best[i][j]: (worst quality, apex k) of the best triangulation of polygon[i..j]
+    best: list[list] = [[None] * m for _ in range(m)]
+    inf = math.inf
     for span in range(2, m):
         for i in range(m - span):
             j = i + span
-            best[i, j] = max(
-                (min(q[i, k, j], best[i, k][0] if k > i + 1 else np.inf, best[k, j][0] if j > k + 1 else np.inf), k)
+            qi, best_i = q[i], best[i]
+            best_i[j] = max(
+                (min(qi[k][j], best_i[k][0] if k > i + 1 else inf, best[k][j][0] if j > k + 1 else inf), k)
                 for k in range(i + 1, j))
-    if not best[0, m - 1][0] > DEGENERATE_TOL:
+    if not best[0][m - 1][0] > DEGENERATE_TOL:
         raise TopologyError(f"general flip of edge ({a}, {b}): no triangulation of its {m}-gon "
-                            f"gives valid elements (best quality {best[0, m - 1][0]:.2e})")
-    triangles, stack = [], [(0, m - 1)]
+                            f"gives valid elements (best quality {best[0][m - 1][0]:.2e})")
+    triangles, stack, hints = [], [(0, m - 1)], []
     while stack:
         i, j = stack.pop()
-        k = best[i, j][1]
+        k = best[i][j][1]
         triangles.append((polygon[i], polygon[k], polygon[j]))
+        hints.append(k - 1)  # ring[k - 1] and ring[k] hold polygon[k]: the centroid is near
         stack += [(i, k)] * (k > i + 1) + [(k, j)] * (j > k + 1)
     added = [[u, v, w, b] for u, v, w in triangles] + [[u, w, v, a] for u, v, w in triangles]
     if not closed:
@@ -307,7 +400,67 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
         if abs(after - before) > volume_tolerance * before and not allow_volume_change:
             raise TopologyError(f"general flip of boundary edge ({a}, {b}) would change the volume by "
                                 f"{(after - before) / before:.1e} (its boundary faces are not coplanar)")
-    return topo.replace_tets(ring, added, _containing(topo, ring, added))
+    return topo.replace_tets(ring, added, _containing(topo, ring, added, hints + hints))
+
+
+def _polygon_qualities(corners: list, rest_a, rest_b) -> list:
+    """``q[i][j][k]`` for i < j < k: the worse quality of the two tetrahedra (i, k, j, a) and
+    (i, j, k, b) (corners i, j, k of the polygon), each to the last bit as :func:`tet_quality`
+    computes it: its edge vectors, their squared lengths and the cross products it takes
+    are those of pairs of corners, computed once per pair, by the same operations."""
+    m = len(corners)
+    ax_, ay_, az_ = rest_a
+    bx_, by_, bz_ = rest_b
+    # per corner i: A - C_i, B - C_i and their squared lengths
+    to_a, to_b, sa, sb = [], [], [], []
+    for x, y, z in corners:
+        u = (ax_ - x, ay_ - y, az_ - z)
+        w = (bx_ - x, by_ - y, bz_ - z)
+        to_a.append(u)
+        to_b.append(w)
+        sa.append(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+        sb.append(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    # per pair i < j: D = C_j - C_i, its squared length, and the cross terms of (D, A - C_i)
+    # and (D, B - C_i) in tet_quality's form (by cz - bz cy, bx cz - bz cx, bx cy - by cx)
+    diff = [[None] * m for _ in range(m)]
+    sq = [[0.0] * m for _ in range(m)]
+    cross_a = [[None] * m for _ in range(m)]
+    cross_b = [[None] * m for _ in range(m)]
+    for i in range(m):
+        xi, yi, zi = corners[i]
+        cax, cay, caz = to_a[i]
+        cbx, cby, cbz = to_b[i]
+        for j in range(i + 1, m):
+            xj, yj, zj = corners[j]
+            dx, dy, dz = xj - xi, yj - yi, zj - zi
+            diff[i][j] = (dx, dy, dz)
+            sq[i][j] = sq[j][i] = dx * dx + dy * dy + dz * dz
+            cross_a[i][j] = (dy * caz - dz * cay, dx * caz - dz * cax, dx * cay - dy * cax)
+            cross_b[i][j] = (dy * cbz - dz * cby, dx * cbz - dz * cbx, dx * cby - dy * cbx)
+    q = [[[None] * m for _ in range(m)] for _ in range(m)]
+    sqrt, nan = math.sqrt, math.nan
+    for i in range(m):
+        diff_i, sq_i, cross_ai, cross_bi, q_i = diff[i], sq[i], cross_a[i], cross_b[i], q[i]
+        sai, sbi = sa[i], sb[i]
+        for j in range(i + 1, m):
+            dij = diff_i[j]
+            sij = sq_i[j]
+            xa = cross_ai[j]
+            q_ij = q_i[j]
+            sq_j = sq[j]
+            for k in range(j + 1, m):
+                # (C_i, C_k, C_j, A): edges C_k - C_i, C_j - C_i, A - C_i, C_j - C_k, A - C_k, A - C_j
+                dik = diff_i[k]
+                volume = (dik[0] * xa[0] - dik[1] * xa[1] + dik[2] * xa[2]) / 6.0
+                longest2 = max(sq_i[k], sij, sai, sq_j[k], sa[k], sa[j])
+                qa = nan if longest2 == 0.0 else volume / (longest2 * sqrt(longest2))
+                # (C_i, C_j, C_k, B): edges C_j - C_i, C_k - C_i, B - C_i, C_k - C_j, B - C_j, B - C_k
+                xb = cross_bi[k]
+                volume = (dij[0] * xb[0] - dij[1] * xb[1] + dij[2] * xb[2]) / 6.0
+                longest2 = max(sij, sq_i[k], sbi, sq_j[k], sb[j], sb[k])
+                qb = nan if longest2 == 0.0 else volume / (longest2 * sqrt(longest2))
+                q_ij[k] = qa if qa < qb or qa != qa else qb
+    return q
 
 
 def move_vertex(topo: TetTopology, v: int, parents, weights, *, feature_angle: float = 0.0) -> None:
@@ -379,14 +532,18 @@ def vertex_fans(topo: TetTopology, v: int) -> list[list[int]]:
         fan_of[start] = count
         stack = [start]
         while stack:
-            for key in slot_face_keys[stack.pop()]:
-                if v not in key or key in unsewn:  # only the three faces on v, and sewn
-                    continue
-                for s in face_tets[key]:
-                    if s not in fan_of:
-                        fan_of[s] = count
-                        stack.append(s)
+            t = stack.pop()
+            for key in slot_face_keys[t]:
+                if v in key and key not in unsewn:  # only the three faces on v, and sewn
+                    owners = face_tets[key]
+                    if len(owners) == 2:
+                        s = owners[1] if owners[0] == t else owners[0]
+                        if s not in fan_of:
+                            fan_of[s] = count
+                            stack.append(s)
         count += 1
+    if count == 1:
+        return [around]
     fans: list[list[int]] = [[] for _ in range(count)]
     for t in around:
         fans[fan_of[t]].append(t)
