@@ -80,6 +80,11 @@ def tet_quality(p0, p1, p2, p3) -> float:
     The arithmetic of :func:`wcut.topology.operators.tet_qualities`, operation for operation,
     so the two agree to the last bit (use this one for a few elements: it avoids numpy's
     per-call overhead). Four coincident corners give NaN (0/0), as numpy does."""
+    return tet_quality_and_length(p0, p1, p2, p3)[0]
+
+
+def tet_quality_and_length(p0, p1, p2, p3) -> tuple[float, float]:
+    """:func:`tet_quality` and the longest edge's length (m); (NaN, 0) for coincident corners."""
     x0, y0, z0 = p0
     x1, y1, z1 = p1
     x2, y2, z2 = p2
@@ -94,8 +99,9 @@ def tet_quality(p0, p1, p2, p3) -> float:
     longest2 = max(ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz, cx * cx + cy * cy + cz * cz,
                    dx * dx + dy * dy + dz * dz, ex * ex + ey * ey + ez * ez, fx * fx + fy * fy + fz * fz)
     if longest2 == 0.0:
-        return math.nan
-    return volume / (longest2 * math.sqrt(longest2))
+        return math.nan, 0.0
+    length = math.sqrt(longest2)
+    return volume / (longest2 * length), length
 
 
 _FLOAT32_XYZ = struct.Struct("3f")

@@ -20,7 +20,8 @@ import math
 import numpy as np
 
 from ..mesh import DEGENERATE_TOL
-from .mesh import REST, TetTopology, TopologyError, face_key, rounded32, signed_volume, tet_quality
+from .mesh import (REST, TetTopology, TopologyError, face_key, rounded32, signed_volume, tet_quality,
+                   tet_quality_and_length)
 
 #: Up to this many elements :func:`tet_qualities` loops in plain floats: numpy's per-call
 #: overhead (some 40 array operations) exceeds the arithmetic of a few elements.
@@ -103,31 +104,13 @@ def _check(topo: TetTopology, tets: list[list[int]], what: str, extra: dict | No
     out = [] if qualities is None else qualities
     start = len(out)
     worst64 = math.inf
-    sqrt = math.sqrt
     for tet in tets:
         if extra64 is None:
             a, b, c, d = tet
             p0, p1, p2, p3 = rest[a], rest[b], rest[c], rest[d]
         else:
             p0, p1, p2, p3 = [extra64[v] if v < 0 else rest[v] for v in tet]
-        # tet_quality's arithmetic, keeping the longest edge
-        x0, y0, z0 = p0
-        x1, y1, z1 = p1
-        x2, y2, z2 = p2
-        x3, y3, z3 = p3
-        ax, ay, az = x1 - x0, y1 - y0, z1 - z0
-        bx, by, bz = x2 - x0, y2 - y0, z2 - z0
-        cx, cy, cz = x3 - x0, y3 - y0, z3 - z0
-        volume = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)) / 6.0
-        dx, dy, dz = x2 - x1, y2 - y1, z2 - z1
-        ex, ey, ez = x3 - x1, y3 - y1, z3 - z1
-        fx, fy, fz = x3 - x2, y3 - y2, z3 - z2
-        longest2 = max(ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz, cx * cx + cy * cy + cz * cz,
-                       dx * dx + dy * dy + dz * dz, ex * ex + ey * ey + ez * ez, fx * fx + fy * fy + fz * fz)
-        if not longest2 > 0.0:  # coincident corners (NaN quality)
-            break
-        length = sqrt(longest2)
-        q = volume / (longest2 * length)
+        q, length = tet_quality_and_length(p0, p1, p2, p3)
         if not q > _FAST_TOL:
             break
         rho = reach / length
