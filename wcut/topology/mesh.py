@@ -402,15 +402,17 @@ class TetTopology:
             else:
                 owners.append(t)
 
-    def _unlink(self, t: int, tet: list[int] | None = None) -> None:
-        """Remove element t (vertices ``tet``, read from the slot when omitted) from the
-        adjacency; a face left with fewer than two elements is no longer unsewn."""
-        if tet is None:
-            tet = self.tets[t].tolist()
+    def _unlink(self, t: int) -> None:
+        """Remove element t from the adjacency (its vertices read from its face keys); a face
+        left with fewer than two elements is no longer unsewn."""
         vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn
-        for v in tet:
-            vertex_tets[v].discard(t)
-        for key in self.slot_face_keys[t]:
+        keys = self.slot_face_keys[t]
+        first = keys[0]  # the three largest vertices; the smallest opens the second key
+        vertex_tets[keys[1][0]].discard(t)
+        vertex_tets[first[0]].discard(t)
+        vertex_tets[first[1]].discard(t)
+        vertex_tets[first[2]].discard(t)
+        for key in keys:
             owners = face_tets[key]
             owners.remove(t)
             if len(owners) < 2:
@@ -440,32 +442,15 @@ class TetTopology:
         :func:`tet_quality` (the operator computed them to check them), remembered for
         :meth:`quality`.
         """
-        # _unlink and _link inline (this runs thousands of times per cut): the same changes to
-        # vertex_tets, face_tets and unsewn in the same order (later choices depend on it)
         journal = self._journal
         parents = parents or [removed[0]] * len(added)
-        vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn
-        face_keys_of, quality_of = self.slot_face_keys, self._slot_quality
-        alive = self.alive
+        quality_of, alive = self._slot_quality, self.alive
         if journal:
             origin = journal.origin
             origins = [origin.get(t, t) for t in parents]
             removed_base = journal.removed_base
         for t in removed:
-            keys = face_keys_of[t]
-            first = keys[0]  # the three largest vertices; the smallest opens the second key
-            vertex_tets[keys[1][0]].discard(t)
-            vertex_tets[first[0]].discard(t)
-            vertex_tets[first[1]].discard(t)
-            vertex_tets[first[2]].discard(t)
-            for key in keys:
-                owners = face_tets[key]
-                owners.remove(t)
-                if len(owners) < 2:
-                    if not owners:
-                        del face_tets[key]
-                    if unsewn:  # most of the time nothing is unsewn: skip the hash of the key
-                        unsewn.discard(key)
+            self._unlink(t)
             alive[t] = False
             quality_of[t] = None
             if journal:
@@ -485,18 +470,7 @@ class TetTopology:
                 alive, tets = self.alive, self.tets
             tets[t] = tet
             alive[t] = True
-            a, b, c, d = tet
-            vertex_tets[a].add(t)
-            vertex_tets[b].add(t)
-            vertex_tets[c].add(t)
-            vertex_tets[d].add(t)
-            keys = face_keys_of[t] = _face_keys(tet)
-            for key in keys:
-                owners = face_tets.get(key)
-                if owners is None:
-                    face_tets[key] = [t]
-                else:
-                    owners.append(t)
+            self._link(t, tet)
             if qualities is not None:
                 quality_of[t] = qualities[i]
             if journal:
