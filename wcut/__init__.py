@@ -7,8 +7,8 @@ Model (rest data), State (positions, velocities) and Control (external inputs).
 
 __version__ = "0.1.0"
 
-from .errors import ExportError, MeshError, ModelError, SceneError, SimulationError, WcutError
-from .mesh import TetMesh, beam
+from .errors import ExportError, FractureError, MeshError, ModelError, SceneError, SimulationError, WcutError
+from .mesh import ShellMesh, TetMesh, beam, l_shape_sheet, precut_sheet, rectangle_sheet
 
 __all__ = [
     "__version__",
@@ -18,6 +18,11 @@ __all__ = [
     "SceneError",
     "ExportError",
     "SimulationError",
+    "FractureError",
     "TetMesh",
+    "ShellMesh",
     "beam",
+    "rectangle_sheet",
+    "l_shape_sheet",
+    "precut_sheet",
 ]

@@ -28,3 +28,8 @@ class SimulationError(WcutError):
 
 class ModelError(WcutError):
     """Model parameters are out of range or inconsistent (material, constraints, springs)."""
+
+
+class FractureError(WcutError):
+    """Input of fracture (stress recovery, criterion, crack growth) is invalid: shapes, NaN,
+    indices or strength."""

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import shell
 from .errors import MeshError
 
 #: Faces of a positively oriented tetrahedron (v0, v1, v2, v3), each ordered so its normal
@@ -351,3 +352,512 @@ def dihedral_angles(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     pairs = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
     cos = np.stack([-np.einsum("mk,mk->m", normals[:, i], normals[:, j]) for i, j in pairs], axis=1)
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+# ---------------------------------------------------------------------------------------------
+# Quadratic triangle shells (thesis 6.2)
+#
+# A 6-node triangle is VTK's / meshio's ``triangle6``: corners 0, 1, 2, then the nodes of the
+# edges (0, 1), (1, 2), (2, 0). In barycentric coordinates ``L = (L0, L1, L2)`` the shape
+# functions are ``L_k (2 L_k - 1)`` at corner k and ``4 L_i L_j`` at the node of edge (i, j);
+# the reference coordinates are ``(r, s) = (L1, L2)``, on the reference triangle of area 1/2.
+
+#: Relative corner area below which a triangle counts as degenerate: A < TRI_DEGENERATE_TOL * l^2,
+#: with l the longest corner edge (an equilateral triangle has 0.433).
+TRI_DEGENERATE_TOL = 1e-10
+
+#: A curved triangle folds when its Jacobian (relative to the corner normal) falls to this
+#: fraction of a straight element's (twice the corner area) at a Gauss point or node.
+TRI_FOLD_TOL = 1e-6
+
+#: Mesh file formats whose meshio writers keep ``triangle6`` cells (the others drop them
+#: silently), and the meshio format to write for each.
+_TRIANGLE6_FORMATS = {".vtu": "vtu", ".vtk": "vtk", ".msh": "gmsh"}
+
+#: Diagonal patterns of the sheet generators.
+SHEET_PATTERNS = ("alternate", "right")
+
+
+def _index_array(cells, columns: int, vertex_count: int, name: str, what: str) -> np.ndarray:
+    """``cells`` as an (M, columns) int64 array of indices into ``vertex_count`` vertices, or a
+    MeshError that names the first bad row."""
+    cells = np.asarray(cells)
+    if cells.ndim != 2 or cells.shape[1] != columns:
+        raise MeshError(f"{name}: {what} must have shape (M, {columns}), got {cells.shape}")
+    if len(cells) == 0:
+        raise MeshError(f"{name}: the mesh has no triangles")
+    if not np.issubdtype(cells.dtype, np.integer):
+        raise MeshError(f"{name}: triangle indices must be integers, got {cells.dtype}")
+    cells = cells.astype(np.int64)
+    out = np.flatnonzero(((cells < 0) | (cells >= vertex_count)).any(axis=1))
+    if len(out):
+        raise MeshError(f"{name}: triangle {out[0]} has a node index out of range {cells[out[0]].tolist()} "
+                        f"(vertex count {vertex_count})")
+    return cells
+
+
+def _vertex_array(vertices, name: str) -> np.ndarray:
+    """``vertices`` as a finite (N, 3) float64 array, or a MeshError naming the first bad vertex."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise MeshError(f"{name}: vertices must have shape (N, 3), got {vertices.shape}")
+    bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
+    if len(bad):
+        raise MeshError(f"{name}: vertex {bad[0]} has a non-finite coordinate {vertices[bad[0]].tolist()}"
+                        f" ({len(bad)} such vertices)")
+    return vertices
+
+
+class ShellMesh(_VertexQueries):
+    """A validated mesh of quadratic (6-node) triangles: a thin shell or membrane in its rest
+    configuration (thesis 6.2).
+
+    Args:
+        vertices: (N, 3) rest positions of all nodes (corners and edge nodes), in metres.
+        triangles: (M, 6) node indices in ``triangle6`` order: corners 0, 1, 2, then the nodes
+            of the edges (0, 1), (1, 2), (2, 0).
+        name: used in error messages (a file name, a generator).
+
+    Raises:
+        MeshError: the message names the offending vertex, triangle or edge, for non-finite
+            coordinates; bad shapes or indices; a node repeated in a triangle or used by none;
+            a node that is both a corner and an edge node; a degenerate corner triangle (area
+            below :data:`TRI_DEGENERATE_TOL` times its longest edge squared); a repeated
+            triangle; a corner edge in more than two triangles (non-manifold), with different
+            edge nodes in its two triangles, or an edge node on two corner edges (the mesh does
+            not conform); two triangles that traverse their shared edge in the same direction
+            (inconsistent orientation: nothing is reoriented, but either consistent orientation
+            is accepted); or a curved triangle whose Jacobian relative to its corner normal is
+            not positive at a Gauss point or node (it folds).
+    """
+
+    def __init__(self, vertices, triangles, *, name: str = "mesh"):
+        self.name = name
+        vertices = _vertex_array(vertices, name)
+        triangles = _index_array(triangles, 6, len(vertices), name, "quadratic triangles")
+        self._check_nodes(triangles, len(vertices))
+        self._check_corner_triangles(vertices, triangles)
+        self._check_edges(triangles, len(vertices))
+        self._check_jacobians(vertices, triangles)
+        self.vertices = vertices
+        self.triangles = triangles
+        #: file index of each vertex when :meth:`load` renumbered them, else None
+        self.source_vertex_ids: np.ndarray | None = None
+
+    @classmethod
+    def trusted(cls, vertices: np.ndarray, triangles: np.ndarray, *, name: str = "mesh") -> "ShellMesh":
+        """A mesh from arrays already known to be valid (the topology manager's output), without
+        validation: a crack step must cost what it touches, not the mesh size."""
+        mesh = cls.__new__(cls)
+        mesh.name = name
+        mesh.vertices = np.asarray(vertices, dtype=np.float64)
+        mesh.triangles = np.asarray(triangles, dtype=np.int64)
+        mesh.source_vertex_ids = None
+        return mesh
+
+    @classmethod
+    def from_linear(cls, vertices, triangles, *, name: str = "mesh") -> "ShellMesh":
+        """The quadratic mesh of linear triangles (M, 3) with straight edges: vertices 0..N-1
+        are the corners, unchanged, then one node per corner edge at its midpoint, numbered in
+        order of first appearance (triangle by triangle, edges (0, 1), (1, 2), (2, 0)). A
+        shared edge gets one node."""
+        vertices = _vertex_array(vertices, name)
+        triangles = _index_array(triangles, 3, len(vertices), name, "triangles")
+        n = len(vertices)
+        pairs = triangles[:, shell.EDGES].reshape(-1, 2)
+        keys = pairs.min(axis=1) * n + pairs.max(axis=1)
+        _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        # np.unique numbers edges by key; renumber them by where they first appear
+        rank = np.empty(len(first), dtype=np.int64)
+        rank[np.argsort(first)] = np.arange(len(first))
+        firsts = np.sort(first)
+        midpoints = 0.5 * (vertices[pairs[firsts, 0]] + vertices[pairs[firsts, 1]])
+        six = np.concatenate([triangles, n + rank[inverse.ravel()].reshape(-1, 3)], axis=1)
+        return cls(np.concatenate([vertices, midpoints]), six, name=name)
+
+    # -- validation ---------------------------------------------------------------------------
+
+    def _check_nodes(self, triangles: np.ndarray, count: int) -> None:
+        """No node twice in a triangle, every node used, and no node both a corner and an
+        edge node (a corner's shape function is not an edge node's)."""
+        ordered = np.sort(triangles, axis=1)
+        repeated = np.flatnonzero((ordered[:, 1:] == ordered[:, :-1]).any(axis=1))
+        if len(repeated):
+            t = repeated[0]
+            raise MeshError(f"{self.name}: triangle {t} repeats a node {triangles[t].tolist()}")
+        used = np.zeros(count, dtype=bool)
+        used[triangles.ravel()] = True
+        unused = np.flatnonzero(~used)
+        if len(unused):
+            raise MeshError(f"{self.name}: vertex {unused[0]} is not used by any triangle "
+                            f"({len(unused)} unreferenced vertices)")
+        both = np.intersect1d(triangles[:, :3], triangles[:, 3:])
+        if len(both):
+            v = both[0]
+            as_corner = np.flatnonzero((triangles[:, :3] == v).any(axis=1))[0]
+            as_edge = np.flatnonzero((triangles[:, 3:] == v).any(axis=1))[0]
+            raise MeshError(f"{self.name}: node {v} is both a corner (of triangle {as_corner}) and an edge node "
+                            f"(of triangle {as_edge})")
+
+    def _check_corner_triangles(self, vertices: np.ndarray, triangles: np.ndarray) -> None:
+        """No degenerate corner triangle, and no two triangles on the same three corners."""
+        areas = 0.5 * np.linalg.norm(shell.corner_normals(vertices, triangles), axis=1)
+        x = vertices[triangles[:, :3]]
+        longest = np.max([np.linalg.norm(x[:, a] - x[:, b], axis=1) for a, b in shell.EDGES], axis=0)
+        degenerate = np.flatnonzero(areas <= TRI_DEGENERATE_TOL * longest**2)
+        if len(degenerate):
+            t = degenerate[0]
+            raise MeshError(f"{self.name}: triangle {t} {triangles[t].tolist()} is degenerate (corner area "
+                            f"{areas[t]:.3g} m^2, longest edge {longest[t]:.3g} m) ({len(degenerate)} degenerate "
+                            f"triangles)")
+        _, first, inverse = np.unique(np.sort(triangles[:, :3], axis=1), axis=0, return_index=True,
+                                      return_inverse=True)
+        repeats = np.flatnonzero(first[inverse.ravel()] != np.arange(len(triangles)))
+        if len(repeats):
+            t = repeats[0]
+            raise MeshError(f"{self.name}: triangle {t} repeats triangle {first[inverse.ravel()[t]]} "
+                            f"(corners {triangles[t, :3].tolist()})")
+
+    def _check_edges(self, triangles: np.ndarray, count: int) -> None:
+        """Every corner edge in at most two triangles, with one edge node for both, an edge
+        node on one edge only, and the two triangles of an edge traversing it in opposite
+        directions (consistent orientation, so normals agree across the edge)."""
+        directed = triangles[:, shell.EDGES].reshape(-1, 2)  # corner pairs as each triangle traverses them
+        nodes = triangles[:, 3:].reshape(-1)
+        low, high = directed.min(axis=1), directed.max(axis=1)
+        keys, first, inverse, counts = np.unique(low * count + high, return_index=True, return_inverse=True,
+                                                 return_counts=True)
+        inverse = inverse.ravel()
+
+        def edge(k: int) -> str:
+            return f"({keys[k] // count}, {keys[k] % count})"
+
+        over = np.flatnonzero(counts > 2)
+        if len(over):
+            owners = np.flatnonzero(inverse == over[0]) // 3
+            raise MeshError(f"{self.name}: non-manifold edge {edge(over[0])} is shared by {counts[over[0]]} "
+                            f"triangles {owners.tolist()} (at most two)")
+        shared = np.flatnonzero(counts[inverse] == 2)
+        order = shared[np.argsort(inverse[shared], kind="stable")]
+        one, two = order[0::2], order[1::2]
+        differ = np.flatnonzero(nodes[one] != nodes[two])
+        if len(differ):
+            a, b = one[differ[0]], two[differ[0]]
+            raise MeshError(f"{self.name}: triangles {a // 3} and {b // 3} share the edge {edge(inverse[a])} "
+                            f"but not its edge node ({nodes[a]} and {nodes[b]}): the mesh does not conform")
+        node_of_edge = nodes[first]
+        values, edge_counts = np.unique(node_of_edge, return_counts=True)
+        if (edge_counts > 1).any():
+            v = values[edge_counts > 1][0]
+            on = np.flatnonzero(node_of_edge == v)
+            raise MeshError(f"{self.name}: node {v} is the edge node of two edges {edge(on[0])} (triangle "
+                            f"{first[on[0]] // 3}) and {edge(on[1])} (triangle {first[on[1]] // 3})")
+        forward = directed[:, 0] < directed[:, 1]
+        same = np.flatnonzero(forward[one] == forward[two])
+        if len(same):
+            a, b = one[same[0]], two[same[0]]
+            raise MeshError(f"{self.name}: triangles {a // 3} and {b // 3} are inconsistently oriented: both "
+                            f"traverse their shared edge {edge(inverse[a])} from {directed[a, 0]} to "
+                            f"{directed[a, 1]}")
+
+    def _check_jacobians(self, vertices: np.ndarray, triangles: np.ndarray) -> None:
+        at_gauss, at_nodes = shell.jacobians(vertices, triangles)
+        worst = np.minimum(at_gauss.min(axis=1), at_nodes.min(axis=1))
+        straight = np.linalg.norm(shell.corner_normals(vertices, triangles), axis=1)
+        folded = np.flatnonzero(worst <= TRI_FOLD_TOL * straight)
+        if len(folded):
+            t = folded[0]
+            raise MeshError(f"{self.name}: curved triangle {t} {triangles[t].tolist()} folds: its Jacobian "
+                            f"relative to the corner normal is {worst[t]:.3g} m^2 at a Gauss point or node "
+                            f"({straight[t]:.3g} m^2 if straight; {len(folded)} such triangles)")
+
+    # -- queries ------------------------------------------------------------------------------
+
+    @property
+    def triangle_count(self) -> int:
+        return len(self.triangles)
+
+    @property
+    def tet_count(self) -> int:
+        # A shell has no tetrahedra: raising AttributeError also makes hasattr(mesh, "tet_count")
+        # false, so code that dispatches on it does not take a shell for a volume mesh.
+        raise AttributeError(f"{self.name}: a ShellMesh has triangles, not tetrahedra (see triangle_count)")
+
+    @property
+    def corner_ids(self) -> np.ndarray:
+        """Sorted indices of the corner vertices (the others are edge nodes)."""
+        return np.unique(self.triangles[:, :3])
+
+    def areas(self) -> np.ndarray:
+        """Rest areas (m^2) of the curved triangles: exact for flat ones (see :data:`wcut.shell.AREA_POINTS`)."""
+        return shell.areas(self.vertices, self.triangles)
+
+    def area(self) -> float:
+        """Total rest area (m^2)."""
+        return float(self.areas().sum())
+
+    def edges(self) -> np.ndarray:
+        """(E, 2) unique corner edges, each as (low, high) vertex indices."""
+        return np.unique(np.sort(self.triangles[:, shell.EDGES].reshape(-1, 2), axis=1), axis=0)
+
+    def mean_edge_length(self) -> float:
+        """Mean straight length (m) of the unique corner edges."""
+        e = self.edges()
+        return float(np.linalg.norm(self.vertices[e[:, 0]] - self.vertices[e[:, 1]], axis=1).mean())
+
+    def boundary_edges(self) -> np.ndarray:
+        """(E, 3) the corner edges used by one triangle, as (corner a, corner b, edge node) with
+        a -> b the direction their triangle traverses them (triangle by triangle, edges (0, 1),
+        (1, 2), (2, 0)). On a counter-clockwise sheet the region lies left of a -> b."""
+        directed = self.triangles[:, shell.EDGES].reshape(-1, 2)
+        nodes = self.triangles[:, 3:].reshape(-1, 1)
+        keys = np.sort(directed, axis=1)
+        _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+        once = counts[inverse.ravel()] == 1
+        return np.concatenate([directed, nodes], axis=1)[once]
+
+    def linear_triangles(self) -> np.ndarray:
+        """(4M, 3) the mesh split into linear triangles at the edge nodes, four per element in
+        the order of :data:`shell.SUBTRIANGLES`, elements in order; oriented as the elements."""
+        return self.triangles[:, shell.SUBTRIANGLES].reshape(-1, 3)
+
+    def surface_tessellation(self, level: int = 2):
+        """The curved sheet as flat triangles for rendering: each element split into ``4**level``
+        (a :class:`wcut.quadratic.SurfaceTessellation`)."""
+        from .quadratic import SurfaceTessellation
+
+        return SurfaceTessellation.of_quadratic(self.triangles, self.vertex_count, level)
+
+    # -- I/O ----------------------------------------------------------------------------------
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "ShellMesh":
+        """Read a triangle mesh from any format meshio reads (.vtu, .vtk, .msh, .obj, ...).
+
+        The file's ``triangle6`` cells are used as they are; a file without them has its linear
+        ``triangle`` cells made quadratic with straight edges (:meth:`from_linear`). Other
+        cells are ignored. Two-dimensional points are put in the plane z = 0. Vertices the
+        triangles do not use are dropped, and then ``source_vertex_ids[i]`` is the file's index
+        of vertex ``i`` (``None`` when the numbering is the file's). For linear triangles it is
+        always set and covers the corners only: the edge nodes made after them are in no file.
+        """
+        path = os.fspath(path)
+        data = read_meshio(path)
+        quadratic = [np.asarray(b.data, dtype=np.int64) for b in data.cells if b.type == "triangle6"]
+        linear = [np.asarray(b.data, dtype=np.int64) for b in data.cells if b.type == "triangle"]
+        if not quadratic and not linear:
+            kinds = sorted({b.type for b in data.cells})
+            raise MeshError(f"{path}: no triangles (triangle6 or triangle) in the file (cell types: "
+                            f"{', '.join(kinds) or 'none'})")
+        name = os.path.basename(path)
+        cells = np.concatenate(quadratic or linear)
+        points = np.asarray(data.points, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] not in (2, 3):
+            raise MeshError(f"{name}: points must be two- or three-dimensional, got shape {points.shape}")
+        if points.shape[1] == 2:  # a flat sheet
+            points = np.concatenate([points, np.zeros((len(points), 1))], axis=1)
+        if cells.min() < 0 or cells.max() >= len(points):
+            raise MeshError(f"{name}: triangle index out of range (vertex count {len(points)})")
+        used = np.unique(cells)
+        remap = np.full(len(points), -1, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        if quadratic:
+            mesh = cls(points[used], remap[cells], name=name)
+            mesh.source_vertex_ids = used if len(used) < len(points) else None
+        else:
+            mesh = cls.from_linear(points[used], remap[cells], name=name)
+            mesh.source_vertex_ids = used
+        return mesh
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the mesh (``triangle6`` cells) with meshio, atomically, as .vtu, .vtk or .msh
+        (gmsh): the other formats meshio writes would drop 6-node triangles.
+
+        Raises:
+            ExportError: another extension, or the file cannot be written.
+        """
+        import meshio
+
+        from .errors import ExportError
+        from .io import atomic_path
+
+        suffix = os.path.splitext(os.fspath(path))[1].lower()
+        if suffix not in _TRIANGLE6_FORMATS:
+            raise ExportError(f"{os.fspath(path)}: cannot write 6-node triangles as '{suffix}': use "
+                              f"{', '.join(_TRIANGLE6_FORMATS)}")
+        mesh = meshio.Mesh(self.vertices, [("triangle6", self.triangles)])
+        # the gmsh writer prints warnings about tags a shell does not have
+        with atomic_path(path) as tmp, contextlib.redirect_stdout(io.StringIO()), \
+                contextlib.redirect_stderr(io.StringIO()):
+            meshio.write(tmp, mesh, file_format=_TRIANGLE6_FORMATS[suffix])
+
+
+# -- sheet generators -------------------------------------------------------------------------
+
+
+def _cell_counts(function: str, **counts) -> None:
+    for label, value in counts.items():
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise MeshError(f"{function}: {label} must be an integer of at least 1, got {value!r}")
+
+
+def _lengths(function: str, label: str, value, count: int) -> np.ndarray:
+    """``value`` as ``count`` positive finite lengths (m), or a MeshError."""
+    try:
+        lengths = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        lengths = np.array([np.nan])
+    if lengths.shape != (count,) or not np.all(np.isfinite(lengths) & (lengths > 0)):
+        what = "a positive length" if count == 1 else f"{count} positive lengths"
+        raise MeshError(f"{function}: {label} must be {what} (m), got {value!r}")
+    return lengths
+
+
+def _origin(function: str, origin) -> np.ndarray:
+    """``origin`` (x, y) or (x, y, z) in metres as a 3-vector, or a MeshError."""
+    try:
+        point = np.asarray(origin, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        point = np.array([np.nan])
+    if len(point) not in (2, 3) or not np.isfinite(point).all():
+        raise MeshError(f"{function}: origin must be two or three finite coordinates (m), got {origin!r}")
+    return np.concatenate([point, [0.0]])[:3]
+
+
+def _pattern(function: str, pattern: str) -> str:
+    if pattern not in SHEET_PATTERNS:
+        raise MeshError(f"{function}: pattern must be one of {', '.join(SHEET_PATTERNS)}, got {pattern!r}")
+    return pattern
+
+
+def _grid_points(nx: int, ny: int, size: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """The (nx+1)(ny+1) grid points of a sheet in the plane z = origin z; point (i, j) has
+    index ``i * (ny + 1) + j``."""
+    x, y = np.meshgrid(np.linspace(0.0, size[0], nx + 1), np.linspace(0.0, size[1], ny + 1), indexing="ij")
+    return np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1) + origin
+
+
+def _grid_triangles(nx: int, ny: int, pattern: str, cells: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Two counter-clockwise linear triangles (seen from +z) per grid cell, cell by cell.
+
+    ``cells`` (C, 2) selects cells (i, j) (default all, i major). The diagonal of cell (i, j)
+    goes from (i, j) to (i+1, j+1) (``"right"``) or, with ``"alternate"``, on cells with odd
+    i + j from (i+1, j) to (i, j+1): the criss-cross pattern gives no direction preference, so
+    cracks that follow edges are not biased. Returns the triangles (2C, 3) and the cell row j
+    of each (2C,)."""
+    if cells is None:
+        cells = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij"), axis=-1).reshape(-1, 2)
+    i, j = cells[:, 0], cells[:, 1]
+    v00, v01 = i * (ny + 1) + j, i * (ny + 1) + j + 1
+    v10, v11 = v00 + ny + 1, v01 + ny + 1
+    main = np.stack([np.stack([v00, v10, v11], axis=1), np.stack([v00, v11, v01], axis=1)], axis=1)
+    anti = np.stack([np.stack([v00, v10, v01], axis=1), np.stack([v10, v11, v01], axis=1)], axis=1)
+    flip = ((i + j) % 2 == 1) if pattern == "alternate" else np.zeros(len(i), dtype=bool)
+    triangles = np.where(flip[:, None, None], anti, main).reshape(-1, 3)
+    return triangles, np.repeat(j, 2)
+
+
+def _compact(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points no triangle uses dropped, the others renumbered in their order."""
+    used = np.unique(triangles)
+    remap = np.full(len(points), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return points[used], remap[triangles]
+
+
+def rectangle_sheet(nx: int, ny: int, size=(1.0, 1.0), *, origin=(0.0, 0.0, 0.0),
+                    pattern: str = "alternate") -> ShellMesh:
+    """A flat rectangular sheet of ``nx * ny`` cells, each split into two quadratic triangles
+    with straight edges, in the plane z = origin z, counter-clockwise seen from +z (normal +z).
+
+    Args:
+        nx, ny: cells along x and y.
+        size: sheet extent (m) along x and y.
+        origin: the sheet's lowest corner (m), (x, y) or (x, y, z).
+        pattern: ``"alternate"`` (diagonals alternate from cell to cell: a criss-cross with no
+            preferred crack direction) or ``"right"`` (every diagonal from lower left to upper
+            right).
+
+    Returns:
+        A mesh whose corner (i, j) at ``origin + (i w / nx, j h / ny, 0)`` is vertex
+        ``i * (ny + 1) + j``; the edge nodes follow (:meth:`ShellMesh.from_linear`).
+    """
+    _cell_counts("rectangle_sheet", nx=nx, ny=ny)
+    size = _lengths("rectangle_sheet", "size", size, 2)
+    points = _grid_points(nx, ny, size, _origin("rectangle_sheet", origin))
+    triangles, _ = _grid_triangles(nx, ny, _pattern("rectangle_sheet", pattern))
+    return ShellMesh.from_linear(points, triangles, name="rectangle_sheet")
+
+
+def l_shape_sheet(n: int, size: float = 1.0, *, origin=(0.0, 0.0, 0.0), pattern: str = "alternate") -> ShellMesh:
+    """A flat L-shaped sheet (thesis figure 6.12): a square of side ``size`` (m) made of
+    ``2n x 2n`` cells without its top-right quadrant of ``n x n`` cells, each cell split into two
+    quadratic triangles with straight edges, counter-clockwise seen from +z, in the plane
+    z = origin z. The re-entrant corner, where stresses concentrate, is the vertex at
+    ``origin + (size / 2, size / 2, 0)``.
+
+    Args:
+        n: cells along half a side.
+        size: side of the square (m).
+        origin: the square's lowest corner (m), (x, y) or (x, y, z).
+        pattern: diagonal pattern, as in :func:`rectangle_sheet`.
+
+    Returns:
+        A mesh of ``6 n^2`` triangles; the corners are the grid points of the L in the order of
+        :func:`rectangle_sheet` (those of the removed quadrant skipped), then the edge nodes.
+    """
+    _cell_counts("l_shape_sheet", n=n)
+    side = _lengths("l_shape_sheet", "size", size, 1)[0]
+    points = _grid_points(2 * n, 2 * n, np.array([side, side]), _origin("l_shape_sheet", origin))
+    cells = np.stack(np.meshgrid(np.arange(2 * n), np.arange(2 * n), indexing="ij"), axis=-1).reshape(-1, 2)
+    cells = cells[(cells[:, 0] < n) | (cells[:, 1] < n)]
+    triangles, _ = _grid_triangles(2 * n, 2 * n, _pattern("l_shape_sheet", pattern), cells)
+    points, triangles = _compact(points, triangles)
+    return ShellMesh.from_linear(points, triangles, name="l_shape_sheet")
+
+
+def precut_sheet(nx: int, ny: int, size=(1.0, 1.0), notch_length: float = 0.5, *, origin=(0.0, 0.0, 0.0),
+                 pattern: str = "alternate") -> ShellMesh:
+    """A flat rectangular sheet with a precut crack (thesis figure 6.12): a straight slit of
+    zero width from the middle of the left side (y = h / 2) along +x.
+
+    The slit follows grid edges, so its length is ``notch_length`` rounded to the nearest whole
+    number of cells, ``k = floor(notch_length / (w / nx) + 1/2)``, and its tip is the vertex at
+    ``origin + (k w / nx, h / 2, 0)``. The grid vertices on the slit other than the tip are
+    duplicated: the triangles below the slit use the originals, those above the copies, so the
+    two sides are not connected across it. The tip is shared. Otherwise as
+    :func:`rectangle_sheet` (counter-clockwise seen from +z, plane z = origin z).
+
+    Args:
+        nx, ny: cells along x and y; ``ny`` must be even (the slit lies on a grid line).
+        size: sheet extent (w, h) in metres.
+        notch_length: slit length (m); it must round to at least one cell and end inside the
+            sheet (``1 <= k <= nx - 1``).
+        origin: the sheet's lowest corner (m), (x, y) or (x, y, z).
+        pattern: diagonal pattern, as in :func:`rectangle_sheet`.
+
+    Returns:
+        A mesh whose corners are the grid points of :func:`rectangle_sheet`, then the ``k``
+        copies of the slit vertices at (i w / nx, h / 2), i = 0..k-1, then the edge nodes.
+    """
+    function = "precut_sheet"
+    _cell_counts(function, nx=nx, ny=ny)
+    if ny % 2:
+        raise MeshError(f"{function}: ny must be even so that the slit at y = h/2 is a grid line, got {ny}")
+    size = _lengths(function, "size", size, 2)
+    notch = _lengths(function, "notch_length", notch_length, 1)[0]
+    width = size[0] / nx
+    cells = int(np.floor(notch / width + 0.5))
+    if notch >= size[0] or cells >= nx:
+        raise MeshError(f"{function}: notch_length {notch:g} m is too long: rounded to whole cells of {width:g} m "
+                        f"it must end inside the sheet of width {size[0]:g} m (at most {nx - 1} cells)")
+    if cells < 1:
+        raise MeshError(f"{function}: notch_length {notch:g} m is shorter than half a cell ({width / 2:g} m)")
+    points = _grid_points(nx, ny, size, _origin(function, origin))
+    triangles, rows = _grid_triangles(nx, ny, _pattern(function, pattern))
+    slit = np.arange(cells) * (ny + 1) + ny // 2  # grid vertices (i, ny/2), i < k: the tip is not cut
+    copies = np.arange(len(points))
+    copies[slit] = len(points) + np.arange(cells)
+    above = rows >= ny // 2
+    triangles[above] = copies[triangles[above]]
+    return ShellMesh.from_linear(np.concatenate([points, points[slit]]), triangles, name=function)

@@ -1,9 +1,10 @@
-"""Model, State and Control of a corotational tetrahedral object (names as in Newton).
+"""Model, State and Control of a corotational object (names as in Newton).
 
 - :class:`Model` holds the rest data as flat ``wp.array``s on one device: rest positions,
   lumped masses, fixed vertices, element connectivity, shape-function gradients, volumes and
-  stiffness, attachment springs. It is built from a :class:`wcut.mesh.TetMesh` and material
-  parameters, once per topology.
+  stiffness, attachment springs. It is built from a tetrahedral mesh (:class:`wcut.mesh.TetMesh`,
+  :class:`wcut.quadratic.QuadraticTetMesh`) or a thin shell (:class:`wcut.mesh.ShellMesh`) and
+  material parameters, once per topology.
 - :class:`State` holds what changes every step: positions, velocities, external forces and
   the element rotations (warm start of the polar decomposition).
 - :class:`Control` holds what the user drives besides forces: attachment targets.
@@ -19,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from . import p2
+from . import p2, shell
 from .errors import ModelError
-from .mesh import TetMesh, edge_matrices
+from .mesh import ShellMesh, TetMesh, edge_matrices
 
 
 def lame_parameters(youngs_modulus, poisson_ratio):
@@ -234,6 +235,10 @@ def _forces_after(old: np.ndarray, change, touched: np.ndarray) -> np.ndarray:
     return forces
 
 
+def _is_shell(mesh) -> bool:
+    return isinstance(mesh, ShellMesh)
+
+
 class State:
     """Time-varying data of a model (Newton's names).
 
@@ -298,7 +303,12 @@ class Model:
         fixed: vertices held in place (Dirichlet): integer indices or a boolean mask.
         attachments: attachment springs (targets in :class:`Control`). On quadratic elements
             they weigh the element's corners (a linear interpolation of the attached point).
+        thickness: shell thickness (m), one number or one per triangle; shells only.
         device: Warp device; defaults to Warp's current device.
+
+    A :class:`wcut.mesh.ShellMesh` gives a model with triangles and hinges and no tetrahedra
+    (``tet_count == 0``): the plane-stress membrane of ``wcut.kernels.tri_p2`` and the hinge
+    bending of ``wcut.kernels.bending``, with the same solver, constraints and attachments.
 
     Attributes (every array is a ``wp.array`` on ``device``):
         tet_order: 1 or 2, the elements' polynomial degree.
@@ -327,6 +337,18 @@ class Model:
         tet_density, tet_youngs_modulus, tet_poisson_ratio: (M,) material (kg/m^3, Pa, 1).
         attachment_indices, attachment_weights, attachment_stiffness: (S,) vec4i, vec4, float (N/m).
         attachment_rest_points: (S,) vec3 rest positions of the attached points (m).
+        tri_count, edge_count: numbers of shell triangles and bending hinges (0 for a solid).
+        tri_indices: (T,) 6-node triangles (VTK triangle6 order; ``wcut.kernels.tri_p2.vec6i``).
+        tri_poses: (T, 3) mat22 ``J^{-1}`` at the Gauss points (1/m), see ``wcut.kernels.tri_p2``.
+        tri_stiffness: (T, 3) vec2 ``A_g h (mu, lambda*)`` (N*m): Gauss area share times
+            thickness times the plane-stress Lame parameters.
+        tri_lame: (T,) vec2 ``(mu, lambda*)`` (Pa); tri_rest_area: (T,) m^2; tri_thickness: (T,) m.
+        tri_density, tri_youngs_modulus, tri_poisson_ratio: (T,) material (kg/m^3, Pa, 1).
+        particle_mass of a shell: HRZ lumping of the 6-node triangle (3/57 of ``rho h A`` per
+            corner, 16/57 per edge node); its consistent load puts gravity on the edge nodes
+            only (1/3 each; a corner's shape function integrates to zero).
+        edge_indices, edge_weights, edge_stiffness, edge_rest_curvature: (H,) the bending
+            hinges of ``wcut.shell.hinges`` (vec4i, vec4 1/m, float N*m, vec3).
 
     Rest frames are computed from the float32-rounded rest positions the kernels see, so the
     rest state is exactly stress-free in float32.
@@ -334,9 +356,10 @@ class Model:
 
     def __init__(self, mesh: TetMesh, *, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3,
                  rayleigh_mass: float = 0.0, rayleigh_stiffness: float = 0.0, gravity=(0.0, 0.0, -9.81),
-                 fixed=None, attachments: Attachments | None = None, device=None):
+                 fixed=None, attachments: Attachments | None = None, thickness=1.0e-3, device=None):
         self.device = wp.get_device(device)
-        M, N = mesh.tet_count, mesh.vertex_count
+        is_shell = _is_shell(mesh)
+        M, N = (mesh.triangle_count if is_shell else mesh.tet_count), mesh.vertex_count
 
         rho = _per_element(density, M, "density", 0.0, np.inf)
         E = _per_element(youngs_modulus, M, "youngs_modulus", 0.0, np.inf)
@@ -363,6 +386,10 @@ class Model:
             raise ModelError(f"attachments: vertex index {outside[0]} out of range 0..{N - 1}")
 
         rest = mesh.vertices.astype(np.float32).astype(np.float64)  # what the kernels see
+        if is_shell:
+            h = _per_element(thickness, M, "thickness", 0.0, np.inf)
+            self._upload_shell(mesh, rest, rho, E, nu, h, fixed_mask, attachments)
+            return
         frames = _quadratic_rest_frames if getattr(mesh, "order", 1) == 2 else _rest_frames
         poses, volume = frames(rest, mesh.tets)
         self._upload(mesh, rest, poses, volume, rho, E, nu, fixed_mask, attachments)
@@ -371,13 +398,14 @@ class Model:
         """Derive masses and stiffness from the host data and create the device arrays.
 
         ``poses`` and ``volume`` are the rest frames: ``Dm^{-1}`` (M, 3, 3) and volumes (M,)
-        for P1, ``J^{-1}`` (M, 4, 3, 3) and Gauss volume shares (M, 4) for P2."""
-        N, M = len(rest), len(mesh.tets)
+        for P1, ``J^{-1}`` (M, 4, 3, 3) and Gauss volume shares (M, 4) for P2. A shell mesh
+        gets empty tetrahedral arrays."""
+        tets = np.zeros((0, 4), dtype=np.int64) if _is_shell(mesh) else mesh.tets
+        N, M = len(rest), len(tets)
         self.mesh = mesh
         self.tet_order = getattr(mesh, "order", 1)
         self.particle_count, self.tet_count = N, M
         mu, lam = lame_parameters(E, nu)
-        tets = mesh.tets
         if self.tet_order == 1:
             self.tet_rotation_shape = M
             mass = np.bincount(tets.ravel(), weights=np.repeat(rho * volume / 4.0, 4), minlength=N)
@@ -416,6 +444,47 @@ class Model:
         self.attachment_weights = wp.array(attachments.weights.reshape(-1, 4), dtype=wp.vec4, device=d)
         self.attachment_stiffness = wp.array(attachments.stiffness, dtype=float, device=d)
         self.attachment_rest_points = wp.array(rest_points, dtype=wp.vec3, device=d)
+        self.tri_count = self.edge_count = 0
+
+    def _upload_shell(self, mesh, rest, rho, E, nu, thickness, fixed_mask, attachments: Attachments) -> None:
+        """The device arrays of a thin shell (``mesh`` a ShellMesh): no tetrahedra."""
+        from .kernels.tri_p2 import vec6i
+
+        poses, areas, _ = shell.rest_frames(rest, mesh.triangles)
+        if not (areas > 0.0).all():
+            e = int(np.argwhere(areas <= 0.0)[0, 0])
+            raise ModelError(f"triangle {e} is folded: non-positive Jacobian at a Gauss point")
+        N, T = len(rest), len(mesh.triangles)
+        tris = mesh.triangles
+        mu, lam = shell.plane_stress_lame(E, nu)
+        rest_area = areas.sum(axis=1)
+        mass = np.bincount(tris.ravel(), weights=np.outer(rho * thickness * rest_area, shell.HRZ_FRACTIONS).ravel(),
+                           minlength=N)
+        load = np.bincount(tris.ravel(), weights=np.outer(rho * thickness * rest_area, shell.LOAD_FRACTIONS).ravel(),
+                           minlength=N)
+        hinge_indices, hinge_weights, hinge_stiffness, hinge_rest = shell.hinges(
+            rest, tris, shell.flexural_rigidity(E, nu, thickness))
+        # the tetrahedral attributes exist, empty, so a solid's code paths see no elements
+        self._upload(mesh, rest, np.zeros((0, 3, 3)), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
+                     fixed_mask, attachments)
+        d = self.device
+        self.particle_mass = wp.array(mass, dtype=float, device=d)
+        self.particle_load_mass = wp.array(load, dtype=float, device=d)
+        self.tri_count, self.edge_count = T, len(hinge_indices)
+        self.tri_indices = wp.array(tris.astype(np.int32), dtype=vec6i, device=d)
+        self.tri_poses = wp.array(poses, dtype=wp.mat22, device=d)
+        self.tri_stiffness = wp.array((areas * thickness[:, None])[:, :, None] * np.stack([mu, lam], axis=-1)[:, None],
+                                      dtype=wp.vec2, device=d)
+        self.tri_lame = wp.array(np.stack([mu, lam], axis=-1), dtype=wp.vec2, device=d)
+        self.tri_rest_area = wp.array(rest_area, dtype=float, device=d)
+        self.tri_thickness = wp.array(thickness, dtype=float, device=d)
+        self.tri_density = wp.array(rho, dtype=float, device=d)
+        self.tri_youngs_modulus = wp.array(E, dtype=float, device=d)
+        self.tri_poisson_ratio = wp.array(nu, dtype=float, device=d)
+        self.edge_indices = wp.array(hinge_indices.astype(np.int32), dtype=wp.vec4i, device=d)
+        self.edge_weights = wp.array(hinge_weights, dtype=wp.vec4, device=d)
+        self.edge_stiffness = wp.array(hinge_stiffness, dtype=float, device=d)
+        self.edge_rest_curvature = wp.array(hinge_rest, dtype=wp.vec3, device=d)
 
     def rebuild(self, mesh: TetMesh, change, state: State | None = None) -> tuple["Model", State | None]:
         """The model of ``mesh``, derived from this one by ``change`` (a
@@ -432,6 +501,8 @@ class Model:
 
         Returns ``(model, state)``; the solver must be made again for the new model.
         """
+        if self.tri_count or _is_shell(mesh):
+            raise ModelError("rebuild: shells are not rebuilt by a TopologyChange yet")
         if getattr(mesh, "order", 1) != self.tet_order:
             raise ModelError(f"rebuild: a mesh of order {getattr(mesh, 'order', 1)} for a model of order "
                              f"{self.tet_order}")

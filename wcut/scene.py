@@ -453,11 +453,12 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
 
 def render_surface(mesh, subdivision: int = 2):
     """What is written of a mesh's boundary: its triangles (linear mesh) or its curved faces
-    tessellated ``subdivision`` times (quadratic mesh); a
+    tessellated ``subdivision`` times (quadratic mesh, shell); a
     :class:`~wcut.quadratic.SurfaceTessellation`."""
+    from .mesh import ShellMesh
     from .quadratic import SurfaceTessellation
 
-    if getattr(mesh, "order", 1) == 2:
+    if getattr(mesh, "order", 1) == 2 or isinstance(mesh, ShellMesh):
         return mesh.surface_tessellation(subdivision)
     return SurfaceTessellation.of_linear(mesh)
 

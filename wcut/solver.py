@@ -25,13 +25,14 @@ import numpy as np
 import warp as wp
 
 from .errors import SimulationError
-from .kernels import attachments, cg, implicit_euler, tet_p1, tet_p2
+from .kernels import attachments, bending, cg, implicit_euler, tet_p1, tet_p2, tri_p2
 from .model import Control, Model, State
 
 
 class SolverCorotational:
     """Implicit Euler with one Newton step on corotational tetrahedra, linear or quadratic
-    (the kernels of ``wcut.kernels.tet_p1`` or ``tet_p2``, chosen by ``model.tet_order``).
+    (the kernels of ``wcut.kernels.tet_p1`` or ``tet_p2``, chosen by ``model.tet_order``), and on
+    thin shells (the membrane of ``wcut.kernels.tri_p2`` and the hinges of ``bending``).
 
     Args:
         model: the object to simulate.
@@ -76,6 +77,8 @@ class SolverCorotational:
         self._r, self._z, self._p, self._q = vec(), vec(), vec(), vec()
         self._elements = tet_p2 if model.tet_order == 2 else tet_p1  # the kernels of the element family
         self.tet_rotated_gradients = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33, device=d)
+        self.tri_rotation = wp.zeros((model.tri_count, 3), dtype=tri_p2.mat32, device=d)
+        self.tri_tension = wp.zeros((model.tri_count, 3), dtype=wp.mat22, device=d)  # A h sigma+ (N*m)
         self._rz = wp.zeros(self._cg_iterations + 1, dtype=float, device=d)
         self._pq = wp.zeros(self._cg_iterations, dtype=float, device=d)
         self._norms = wp.zeros(2, dtype=float, device=d)  # tol^2 b.D^-1 b (the threshold), b.D^-1 b
@@ -96,7 +99,8 @@ class SolverCorotational:
 
     def launch_element_pass(self, state_in: State, state_out: State, dt: float, record: bool = False):
         """The once-per-step element kernel (rotations, forces, right-hand side terms,
-        preconditioner diagonal, warm-start product); returns the recorded launch if ``record``."""
+        preconditioner diagonal, warm-start product) of the tetrahedra; returns the recorded
+        launch if ``record``. Shell triangles and hinges get theirs in :meth:`launch_shell_pass`."""
         m = self.model
         return wp.launch(self._elements.tet_forces, m.tet_count, device=m.device, record_cmd=record,
                          inputs=[m.tet_indices, m.tet_poses, m.tet_stiffness, state_in.particle_q,
@@ -104,6 +108,22 @@ class SolverCorotational:
                                  self.stiffness_scale(dt), self.rotation_iterations, self.rotation_tolerance],
                          outputs=[state_out.tet_rotation, self.tet_rotated_gradients, self._force,
                                   self.particle_diagonal, self._q])
+
+    def launch_shell_pass(self, state_in: State, dt: float) -> None:
+        """The once-per-step kernels of the shell triangles and bending hinges (the terms of
+        :meth:`launch_element_pass`)."""
+        m = self.model
+        velocity_scale, matrix_scale = dt + m.rayleigh_stiffness, self.stiffness_scale(dt)
+        outputs = [self._force, self.particle_diagonal, self._q]
+        wp.launch(tri_p2.tri_forces, m.tri_count, device=m.device,
+                  inputs=[m.tri_indices, m.tri_poses, m.tri_stiffness, state_in.particle_q, state_in.particle_qd,
+                          self.dv, velocity_scale, matrix_scale],
+                  outputs=[self.tri_rotation, self.tri_tension, *outputs])
+        if m.edge_count:
+            wp.launch(bending.hinge_forces, m.edge_count, device=m.device,
+                      inputs=[m.edge_indices, m.edge_weights, m.edge_stiffness, m.edge_rest_curvature,
+                              state_in.particle_q, state_in.particle_qd, self.dv, velocity_scale, matrix_scale],
+                      outputs=outputs)
 
     def _record_cg(self, dt: float) -> None:
         """Record the conjugate-gradient launches for the current dt, damping and tolerance."""
@@ -114,10 +134,21 @@ class SolverCorotational:
                           inputs=[self.rhs, self.inv_diagonal, self.mass_scale, self.dv, self.cg_tolerance ** 2],
                           outputs=[q, r, z, p, rz, norms])]
         for k in range(self._cg_iterations):
-            cmds.append(wp.launch(self._elements.tet_matvec, m.tet_count, device=d, record_cmd=True,
-                                  inputs=[m.tet_indices, self.tet_rotated_gradients, m.tet_stiffness, p,
-                                          stiffness_scale, k, rz, norms],
-                                  outputs=[q]))
+            if m.tet_count:
+                cmds.append(wp.launch(self._elements.tet_matvec, m.tet_count, device=d, record_cmd=True,
+                                      inputs=[m.tet_indices, self.tet_rotated_gradients, m.tet_stiffness, p,
+                                              stiffness_scale, k, rz, norms],
+                                      outputs=[q]))
+            if m.tri_count:
+                cmds.append(wp.launch(tri_p2.tri_matvec, m.tri_count, device=d, record_cmd=True,
+                                      inputs=[m.tri_indices, m.tri_poses, m.tri_stiffness, self.tri_rotation,
+                                              self.tri_tension, p, stiffness_scale, k, rz, norms],
+                                      outputs=[q]))
+            if m.edge_count:
+                cmds.append(wp.launch(bending.hinge_matvec, m.edge_count, device=d, record_cmd=True,
+                                      inputs=[m.edge_indices, m.edge_weights, m.edge_stiffness, p,
+                                              stiffness_scale, k, rz, norms],
+                                      outputs=[q]))
             if m.attachment_count:
                 cmds.append(wp.launch(attachments.attachment_matvec, m.attachment_count, device=d, record_cmd=True,
                                       inputs=[m.attachment_indices, m.attachment_weights, m.attachment_stiffness, p,
@@ -169,7 +200,10 @@ class SolverCorotational:
         self._rz.zero_()
         self._pq.zero_()
         self._norms.zero_()
-        self.launch_element_pass(state_in, state_out, dt)
+        if m.tet_count:
+            self.launch_element_pass(state_in, state_out, dt)
+        if m.tri_count:
+            self.launch_shell_pass(state_in, dt)
         if m.attachment_count:
             wp.launch(attachments.attachment_forces, m.attachment_count, device=d,
                       inputs=[m.attachment_indices, m.attachment_weights, m.attachment_stiffness,

@@ -1,11 +1,12 @@
-"""Stress recovery for output: corotated element stress and nodal von Mises values."""
+"""Stress recovery for output: corotated element stress and nodal von Mises values of solids,
+Gauss-point stress of shells."""
 
 from __future__ import annotations
 
 import numpy as np
 import warp as wp
 
-from .kernels import tet_p1, tet_p2
+from .kernels import tet_p1, tet_p2, tri_p2
 from .model import Model, State
 
 
@@ -41,3 +42,12 @@ def vertex_von_mises(model: Model, state: State) -> np.ndarray:
     np.add.at(total, tets.ravel(), np.repeat(vm * volume, nodes))
     np.add.at(weight, tets.ravel(), np.repeat(volume, nodes))
     return total / weight
+
+
+def shell_gauss_stress(model: Model, state: State) -> np.ndarray:
+    """Cauchy stress (T, 3, 3, 3) in Pa at the three Gauss points of every shell triangle, in
+    world axes: the corotated plane stress ``R sigma(S - I) R^T`` of ``wcut.kernels.tri_p2``."""
+    stress = wp.empty((model.tri_count, 3), dtype=wp.mat33, device=model.device)
+    wp.launch(tri_p2.tri_stress, model.tri_count, device=model.device,
+              inputs=[model.tri_indices, model.tri_poses, model.tri_lame, state.particle_q], outputs=[stress])
+    return stress.numpy().astype(np.float64)
