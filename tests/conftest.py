@@ -5,6 +5,7 @@ from __future__ import annotations
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import wcut
@@ -84,3 +85,10 @@ def run_recording_blade(scene, output, frames=None):
         result = wcut.scene.run_scene(scene, output, frames=frames, progress=False)
     (blade,) = blades
     return result, blade
+
+
+def axis_angle_rotation(axis, angle: float) -> np.ndarray:
+    """The rotation (3, 3) by ``angle`` (rad) about ``axis`` (Rodrigues' formula)."""
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K

@@ -7,18 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import warp as wp
+from conftest import axis_angle_rotation
 
 from wcut import shell
 from wcut.kernels import bending
 from wcut.mesh import ShellMesh, rectangle_sheet
 from wcut.model import Model
 from wcut.solver import SolverCorotational
-
-
-def _rotation(axis, angle) -> np.ndarray:
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
 def _cylinder(points: np.ndarray, radius: float, angle_deg: float = 0.0) -> np.ndarray:
@@ -66,7 +61,7 @@ def test_hinge_weights_annihilate_affine_fields_and_measure_the_fold_angle():
     # folding one hinge by phi about its edge gives |sum w x| = 2 sin(phi / 2) ~ phi
     X = mesh.vertices[indices[0]].copy()
     axis, phi = X[1] - X[0], 0.01
-    X[3] = X[0] + _rotation(axis, phi) @ (X[3] - X[0])
+    X[3] = X[0] + axis_angle_rotation(axis, phi) @ (X[3] - X[0])
     assert np.linalg.norm(weights[0] @ X) == pytest.approx(2 * np.sin(phi / 2), rel=1e-9)
 
 
@@ -79,7 +74,7 @@ def test_rest_and_rigid_motions_are_force_free(curved):
     bent = _cylinder(mesh.vertices, 0.5, 20.0) if not curved else mesh.vertices
     scale = np.abs(hinges.forces(bent)[0]).max()  # the force of a comparable bend
     assert np.abs(hinges.forces(rest)[0]).max() < 1e-4 * scale  # float32 rounding of the points
-    moved = rest @ _rotation([0.3, -1.0, 2.0], 2.0).T + np.array([0.3, -0.2, 0.1])
+    moved = rest @ axis_angle_rotation([0.3, -1.0, 2.0], 2.0).T + np.array([0.3, -0.2, 0.1])
     assert np.abs(hinges.forces(moved)[0]).max() < 1e-4 * scale
 
 

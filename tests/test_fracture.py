@@ -8,12 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from wcut import fracture
-from wcut.shell import GAUSS_POINTS
+from wcut.shell import GAUSS_POINTS, NODE_POINTS
 from wcut.errors import WcutError
 from wcut.fracture import FractureError, fracture_candidates, nodal_stress, principal_stresses
 
-#: Barycentric coordinates of the 6 nodes of a triangle6: corners, then edges (0,1), (1,2), (2,0).
-NODE_POINTS = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [.5, .5, 0], [0, .5, .5], [.5, 0, .5]])
 
 
 def _rotation(seed: int) -> np.ndarray:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import warp as wp
+from conftest import axis_angle_rotation
 
 from wcut import shell
 from wcut.kernels import tri_p2
@@ -15,12 +16,6 @@ from wcut.mesh import ShellMesh, rectangle_sheet
 from wcut.model import Model
 
 YOUNG, NU, THICKNESS = 1.0e5, 0.3, 1.0e-3
-
-
-def _rotation(axis, angle) -> np.ndarray:
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
 def _curved_sheet() -> ShellMesh:
@@ -78,7 +73,7 @@ def test_rest_and_rigid_motions_are_force_free(curved):
     scale = YOUNG * THICKNESS * 0.1  # N: the force of a unit strain on a 0.1 m edge
     X = mesh.vertices
     assert np.abs(_Pass(model, X).f.numpy()).max() < 1e-5 * scale
-    moved = X @ _rotation([1.0, 2.0, 0.5], 2.5).T + np.array([0.3, -1.0, 2.0])
+    moved = X @ axis_angle_rotation([1.0, 2.0, 0.5], 2.5).T + np.array([0.3, -1.0, 2.0])
     assert np.abs(_Pass(model, moved).f.numpy()).max() < 1e-5 * scale
 
 
@@ -105,7 +100,7 @@ def test_patch_test_affine_stretch_gives_uniform_stress_and_interior_equilibrium
     inner = mesh.vertices[:, 0] * (mesh.vertices[:, 0] - 0.4) * mesh.vertices[:, 1] * (mesh.vertices[:, 1] - 0.3) != 0
     jitter = 0.004 * rng.standard_normal(mesh.vertices.shape) * np.array([1.0, 1.0, 0.0])
     flat = mesh.vertices + jitter * inner[:, None]  # irregular interior, including curved elements
-    tilt = _rotation([1.0, -1.0, 0.3], 0.7)
+    tilt = axis_angle_rotation([1.0, -1.0, 0.3], 0.7)
     mesh = ShellMesh(flat @ tilt.T, mesh.triangles)
     model = _model(mesh)
     strain = np.array([[0.02, 0.005], [0.005, -0.01]])  # symmetric: no rotation part
