@@ -20,6 +20,9 @@ frame and carried by ``R_h``, the rotation of the frame (edge, normal of triangl
 ``(x0, x1, x2)``) from rest to now. For a flat rest shape ``R_h b = 0`` and the energy's Hessian
 ``k w w^T (x) I`` is constant and exact; for a curved one the solver's matrix leaves out the
 derivative of ``R_h``, as the corotational elements do.
+
+That matrix is the one of an attachment spring on the weighted point ``sum w_i x_i``, so the
+conjugate gradient applies it with ``wcut.kernels.attachments.attachment_matvec``.
 """
 
 import warp as wp
@@ -68,27 +71,3 @@ def hinge_forces(
         wp.atomic_add(particle_f, i[a], (-k * w[a]) * s)
         wp.atomic_add(product_start, i[a], (matrix_scale * k * w[a]) * d)
         wp.atomic_add(particle_diagonal, i[a], wp.vec3(matrix_scale * k * w[a] * w[a]))
-
-
-@wp.kernel
-def hinge_matvec(
-    edge_indices: wp.array(dtype=wp.vec4i),
-    edge_weights: wp.array(dtype=wp.vec4),
-    edge_stiffness: wp.array(dtype=float),
-    x: wp.array(dtype=wp.vec3),
-    scale: float,
-    k: int,
-    rz: wp.array(dtype=float),
-    threshold: wp.array(dtype=float),
-    y: wp.array(dtype=wp.vec3),
-):
-    """y += scale k w (w.x) per hinge; returns at once when ``rz[k] <= threshold[0]``."""
-    if rz[k] <= threshold[0]:
-        return
-    h = wp.tid()
-    i = edge_indices[h]
-    w = edge_weights[h]
-    s = w[0] * x[i[0]] + w[1] * x[i[1]] + w[2] * x[i[2]] + w[3] * x[i[3]]
-    c = scale * edge_stiffness[h]
-    for a in range(4):
-        wp.atomic_add(y, i[a], (c * w[a]) * s)

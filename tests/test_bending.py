@@ -10,7 +10,7 @@ import warp as wp
 from conftest import axis_angle_rotation
 
 from wcut import shell
-from wcut.kernels import bending
+from wcut.kernels import attachments, bending
 from wcut.mesh import ShellMesh, rectangle_sheet
 from wcut.model import Model
 from wcut.solver import SolverCorotational
@@ -46,7 +46,7 @@ class _Hinges:
 
     def matvec(self, x) -> np.ndarray:
         y = wp.zeros(len(x), dtype=wp.vec3)
-        wp.launch(bending.hinge_matvec, self.count,
+        wp.launch(attachments.attachment_matvec, self.count,
                   inputs=[*self.arrays, wp.array(x, dtype=wp.vec3), 1.0, 0, wp.array([1.0], dtype=float),
                           wp.zeros(1, dtype=float)], outputs=[y])
         return y.numpy().astype(np.float64)

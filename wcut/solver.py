@@ -145,7 +145,8 @@ class SolverCorotational:
                                               self.tri_tension, p, stiffness_scale, k, rz, norms],
                                       outputs=[q]))
             if m.edge_count:
-                cmds.append(wp.launch(bending.hinge_matvec, m.edge_count, device=d, record_cmd=True,
+                # a hinge's matrix k w w^T is an attachment spring's (see wcut.kernels.bending)
+                cmds.append(wp.launch(attachments.attachment_matvec, m.edge_count, device=d, record_cmd=True,
                                       inputs=[m.edge_indices, m.edge_weights, m.edge_stiffness, p,
                                               stiffness_scale, k, rz, norms],
                                       outputs=[q]))
