@@ -125,9 +125,8 @@ def _write_flat_mesh(path: Path):
 
 
 def _write_surface_mesh(path: Path):
-    """A .vtu file with triangles only."""
-    beam = wcut.beam(1, 1, 1)
-    meshio.write(path, meshio.Mesh(beam.vertices, [("triangle", beam.boundary().triangles)]))
+    """A .vtu file with quadrilaterals only: neither a solid nor a shell (a triangle file is a shell)."""
+    meshio.write(path, meshio.Mesh(np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]), [("quad", [[0, 1, 2, 3]])]))
 
 
 @pytest.mark.parametrize(

@@ -385,3 +385,260 @@ def test_a_stretched_sheet_exports_to_usd_coloured_by_its_maximal_principal_stre
                                stress_colors(surface.points(sigma_plus), vmin=0.0, vmax=2e4))
     assert validate_usd(path) == []
     assert len(surface.triangles) == 16 * mesh.triangle_count
+
+
+# --- crack propagation (ShellFracture) ------------------------------------------------------
+
+PRECUT_SIZE = 0.1  # m, side of the precut sheet the propagation tests pull apart
+
+
+def _precut_tip(mesh) -> int:
+    """The notch tip of a precut sheet: the boundary corner whose two boundary neighbours are
+    the two copies of one point (the slit's last vertex, below and above)."""
+    neighbours: dict[int, list[int]] = {}
+    for a, b, _ in mesh.boundary_edges().tolist():
+        neighbours.setdefault(a, []).append(b)
+        neighbours.setdefault(b, []).append(a)
+    X = mesh.vertices
+    (tip,) = [v for v, n in neighbours.items() if len(n) == 2 and n[0] != n[1] and np.array_equal(X[n[0]], X[n[1]])]
+    return tip
+
+
+def _edge_components(mesh) -> int:
+    """Connected components of the triangles by shared corner edges."""
+    from wcut.topology.shell import edge_users
+
+    parent = list(range(mesh.triangle_count))
+
+    def root(t):
+        while parent[t] != t:
+            parent[t] = parent[parent[t]]
+            t = parent[t]
+        return t
+
+    for users in edge_users(mesh.triangles).values():
+        if len(users) == 2:
+            parent[root(users[0][0])] = root(users[1][0])
+    return len({root(t) for t in range(mesh.triangle_count)})
+
+
+class _PulledPrecut:
+    """A 6x6 precut sheet of 0.1 m (notch 0.03 m, tip at x = 1/30 m, y = 0.05 m) held at its
+    bottom and top rows, the top row pulled up along y (mode I): pre-stretched by 3 % and
+    pulled 0.5 mm more every 1 ms step, so the crack starts within a dozen steps. Each step
+    runs the solver, then the fracture, and rebuilds the model after a change, checking the
+    sheet (valid, area kept) after every change."""
+
+    def __init__(self, variant="none", strength=2.0e5, max_cracks_per_step=1, cg_iterations=20):
+        from wcut.mesh import precut_sheet
+        from wcut.model import Model
+        from wcut.solver import SolverCorotational
+
+        self.solver_type, self.cg_iterations = SolverCorotational, cg_iterations
+        mesh = precut_sheet(6, 6, (PRECUT_SIZE, PRECUT_SIZE), notch_length=0.03)
+        self.rest_mesh, self.area, self.tip = mesh, mesh.area(), _precut_tip(mesh)
+        X = mesh.vertices
+        held = np.flatnonzero((X[:, 1] < 1e-9) | (X[:, 1] > PRECUT_SIZE - 1e-9))
+        self.model = Model(mesh, density=1000.0, youngs_modulus=1.0e6, poisson_ratio=0.3, thickness=1.0e-3,
+                           gravity=(0.0, 0.0, 0.0), fixed=held, rayleigh_mass=5.0)
+        self.state, self.scratch = self.model.state(), self.model.state()
+        q = X.copy()
+        q[:, 1] *= 1.03
+        self.state.particle_q.assign(q)
+        self.solver = SolverCorotational(self.model, cg_iterations=cg_iterations)
+        self.fracture = fracture.ShellFracture(mesh, strength, variant=variant, max_cracks_per_step=max_cracks_per_step)
+        self.steps = 0
+        self.pull = 0.0
+
+    def step(self, pull: float | None = None):
+        """One solver step with the top row at ``pull`` (m, default: the ramp), then one
+        fracture step; returns the change (or None)."""
+        from wcut.topology.shell import check_shell
+
+        self.steps += 1
+        self.pull = 0.03 * PRECUT_SIZE + 0.0005 * self.steps if pull is None else pull
+        rest = self.fracture.mesh.vertices
+        top = rest[:, 1] > PRECUT_SIZE - 1e-9
+        q = self.state.particle_q.numpy()
+        q[top, 1] = rest[top, 1] + self.pull
+        self.state.particle_q.assign(q)
+        self.solver.step(self.state, self.scratch, self.model.control(), 1.0e-3)
+        self.state, self.scratch = self.scratch, self.state
+        change = self.fracture.step(self.model, self.state)
+        if change is not None:
+            check_shell(self.fracture.mesh, self.area, 1e-9)
+            self.model, self.state = self.model.rebuild(self.fracture.mesh, change, self.state)
+            self.scratch = self.model.state()
+            self.solver = self.solver_type(self.model, cg_iterations=self.cg_iterations)
+        return change
+
+    def separated(self) -> bool:
+        """The crack has reached the right side of the sheet."""
+        events = self.fracture.events
+        return bool(events) and bool((events[-1].segments[:, 1, 0] > PRECUT_SIZE - 1e-9).any())
+
+
+def test_shell_fracture_rejects_bad_arguments():
+    from wcut.mesh import precut_sheet
+
+    mesh = precut_sheet(2, 2, (0.1, 0.1), notch_length=0.05)
+    with pytest.raises(FractureError, match="variant"):
+        fracture.ShellFracture(mesh, 1.0e5, variant="snap")
+    for strength in (0.0, -1.0, np.nan, np.inf, "1e5", None, True):
+        with pytest.raises(FractureError, match="strength"):
+            fracture.ShellFracture(mesh, strength)
+    for count in (0, -1, 1.5, True, "2"):
+        with pytest.raises(FractureError, match="max_cracks_per_step"):
+            fracture.ShellFracture(mesh, 1.0e5, max_cracks_per_step=count)
+    with pytest.raises(FractureError, match="smoothing"):
+        fracture.ShellFracture(mesh, 1.0e5, smoothing="mean")
+    with pytest.raises(FractureError, match="direction_smoothing"):
+        fracture.ShellFracture(mesh, 1.0e5, direction_smoothing="mean")
+    for quality in (-0.1, 1.0):
+        with pytest.raises(FractureError, match="min_quality"):
+            fracture.ShellFracture(mesh, 1.0e5, min_quality=quality)
+    from wcut.mesh import beam
+
+    for not_a_shell in (beam(1, 1, 1), mesh.vertices, None):
+        with pytest.raises(FractureError, match="ShellMesh"):
+            fracture.ShellFracture(not_a_shell, 1.0e5)
+    assert set(fracture.VARIANTS) == {"none", "spatial", "material", "split"}
+
+
+def test_shell_fracture_step_rejects_a_model_of_another_mesh():
+    from wcut.mesh import precut_sheet
+
+    frac = fracture.ShellFracture(precut_sheet(2, 2, (0.1, 0.1), notch_length=0.05), 1.0e5)
+    other = _sheet_model(precut_sheet(4, 2, (0.1, 0.1), notch_length=0.05))
+    with pytest.raises(FractureError, match="rebuild"):
+        frac.step(other, other.state())
+
+
+def test_shell_fracture_breaks_nothing_below_the_strength():
+    run = _PulledPrecut(strength=1.0e9)
+    for _ in range(5):
+        assert run.step() is None
+    assert run.fracture.events == [] and run.fracture.mesh is run.rest_mesh
+
+
+@pytest.mark.parametrize("variant", fracture.VARIANTS)
+def test_precut_sheet_under_tension_cracks_straight_from_the_notch_tip(variant):
+    """Mode I (thesis figures 6.12 and 6.16): the crack starts at the notch tip and runs along
+    y = 0.05 m, perpendicular to the load, one tip advancing edge by edge until the sheet is in
+    two; the sheet stays valid with its area after every event (checked in the driver)."""
+    run = _PulledPrecut(variant)
+    tip_position = run.rest_mesh.vertices[run.tip].copy()
+    for _ in range(60):
+        run.step()
+        if run.separated():
+            break
+    events = run.fracture.events
+    assert run.separated(), f"{variant}: the crack did not cross the sheet in {run.steps} steps ({len(events)} events)"
+    first = events[0]
+    assert first.node == run.tip and first.initiation
+    np.testing.assert_allclose(first.segments[0, 0], tip_position, rtol=0, atol=1e-12)
+    assert all(not e.initiation for e in events[1:])  # one crack, grown from its tip
+    cell = PRECUT_SIZE / 6
+    for previous, event in zip(events, events[1:]):
+        np.testing.assert_allclose(event.segments[0, 0], previous.segments[-1, 1], rtol=0, atol=1e-12)
+    for event in events:
+        assert event.sigma_plus > run.fracture.strength
+        if variant != "split":
+            assert not event.refined
+        if variant == "none":
+            assert not event.snapped
+        d = event.segments[:, 1] - event.segments[:, 0]
+        angle = np.degrees(np.arctan2(np.hypot(d[:, 1], d[:, 2]), np.abs(d[:, 0])))
+        assert (angle < 10.0).all(), f"{variant}: segment at {angle.max():.1f} degrees from the x axis"
+        assert (d[:, 0] > 0).all()  # forward, away from the notch
+        assert np.abs(event.segments[:, :, 1] - 0.5 * PRECUT_SIZE).max() < 0.25 * cell
+        assert abs(event.direction[0]) > np.cos(np.radians(10.0))
+    if variant == "split":
+        assert any(e.refined for e in events)
+    assert _edge_components(run.fracture.mesh) == 2
+    assert run.model.particle_count == run.fracture.mesh.vertex_count
+
+
+def test_a_cracked_sheet_keeps_running_finite_with_the_load_held():
+    """After the crack has crossed the sheet (split variant: the most refined mesh), 1000 more
+    steps with the pull held stay finite, the halves stay apart and come to rest."""
+    run = _PulledPrecut("split")
+    while not run.separated():
+        run.step()
+        assert run.steps < 60
+    held = run.pull
+    solver = run.solver  # the solver of the run (20 CG iterations)
+    control = run.model.control()
+    for _ in range(1000):
+        solver.step(run.state, run.scratch, control, 1.0e-3)
+        run.state, run.scratch = run.scratch, run.state
+    solver.check_finite()
+    q, qd = run.state.particle_q.numpy(), run.state.particle_qd.numpy()
+    assert np.isfinite(q).all() and np.isfinite(qd).all()
+    rest = run.fracture.mesh.vertices
+    assert np.abs(q - rest).max() < 1.1 * held  # the top half follows its held row, the bottom stays
+    assert np.abs(qd).max() < 1e-2  # m/s: damped to rest, no growing oscillation
+    # the crack faces: the nodes the crack duplicated (pairs of nodes at one rest point, right of
+    # the notch tip) have been pulled apart, the copy above carried up with the top half
+    tip_x = run.rest_mesh.vertices[run.tip, 0]
+    _, first, inverse, counts = np.unique(rest, axis=0, return_index=True, return_inverse=True, return_counts=True)
+    gaps = []
+    for group in np.flatnonzero(counts == 2):
+        a, b = np.flatnonzero(inverse.ravel() == group)
+        if rest[a, 0] > tip_x + 1e-9:
+            gaps.append(abs(q[a, 1] - q[b, 1]))
+    assert len(gaps) >= 2 * len(run.fracture.events) and min(gaps) > 0.5 * held
+
+
+@pytest.mark.parametrize("limit", [1, 2])
+def test_max_cracks_per_step_bounds_the_events_of_a_step(limit):
+    from collections import Counter
+
+    run = _PulledPrecut("none", strength=5.0e4, max_cracks_per_step=limit)
+    for _ in range(12):
+        run.step()
+    counts = Counter(e.step for e in run.fracture.events)
+    assert counts and max(counts.values()) <= limit
+    if limit > 1:
+        assert max(counts.values()) == limit  # the bound is what limited them
+    for step in counts:  # nodes advanced in one step are distinct
+        nodes = [e.node for e in run.fracture.events if e.step == step]
+        assert len(set(nodes)) == len(nodes)
+    assert np.isfinite(run.state.particle_q.numpy()).all()
+
+
+@pytest.mark.parametrize("variant", fracture.VARIANTS)
+def test_l_shape_pulled_apart_cracks_first_at_the_reentrant_corner(variant):
+    """The L-shape of figure 6.15: with its right arm pulled out and down (as in the stress
+    test above, the load ramped over 10 steps), ShellFracture's first crack starts at the
+    re-entrant corner and runs into the sheet."""
+    from wcut.mesh import l_shape_sheet
+    from wcut.solver import SolverCorotational
+    from wcut.topology.shell import check_shell
+
+    mesh = l_shape_sheet(4, 0.2)
+    top = mesh.vertices_in_box((-1.0, 0.2 - 1e-9, -1.0), (1.0, 1.0, 1.0))
+    right = mesh.vertices_in_box((0.2 - 1e-9, -1.0, -1.0), (1.0, 1.0, 1.0))
+    model = _sheet_model(mesh, fixed=np.concatenate([top, right]), rayleigh_mass=50.0)
+    state, scratch = model.state(), model.state()
+    solver = SolverCorotational(model, cg_iterations=60)
+    frac = fracture.ShellFracture(mesh, 2.0e4, variant=variant)
+    for step in range(30):
+        q = state.particle_q.numpy()
+        q[right] = mesh.vertices[right] + np.array([0.004, -0.004, 0.0]) * min(1.0, (step + 1) / 10)
+        state.particle_q.assign(q)
+        solver.step(state, scratch, None, 0.05)
+        state, scratch = scratch, state
+        change = frac.step(model, state)
+        if change is not None:
+            break
+    assert frac.events, "no crack in 30 steps"
+    first = frac.events[0]
+    assert np.allclose(mesh.vertices[first.node], [0.1, 0.1, 0.0], atol=1e-9)
+    assert first.initiation and first.step == step
+    np.testing.assert_allclose(first.segments[0, 0], [0.1, 0.1, 0.0], atol=1e-9)
+    into = first.segments[0, 1] - first.segments[0, 0]
+    assert into[0] < 0 and into[1] < 0  # into the L, away from the missing quadrant
+    check_shell(frac.mesh, mesh.area(), 1e-9)
+    model, state = model.rebuild(frac.mesh, change, state)
+    SolverCorotational(model, cg_iterations=60).step(state, model.state(), None, 0.05)

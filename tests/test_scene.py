@@ -141,8 +141,13 @@ def test_bad_mesh_section(tmp_path, write_scene, mesh_table, key, words):
     "extra, key, words",
     [
         ("[[attachments]]\npoint = [0.1, 0.02, 0.02]\nvertex = 3\ntarget = [0, 0, 0]\nstiffness = 10.0\n",
-         "attachments[0]", "exactly one of point and vertex"),
-        ("[[attachments]]\ntarget = [0, 0, 0]\nstiffness = 10.0\n", "attachments[0]", "exactly one of point and vertex"),
+         "attachments[0]", "exactly one of point, vertex and box"),
+        ("[[attachments]]\ntarget = [0, 0, 0]\nstiffness = 10.0\n", "attachments[0]",
+         "exactly one of point, vertex and box"),
+        ("[[attachments]]\nbox = [[0, 0, 0], [1, 1, 1]]\ntarget = [0, 0, 0]\nstiffness = 10.0\n",
+         "attachments[0].target", "rest position"),
+        ("[[attachments]]\nvertex = 3\ntarget = [0, 0, 0]\nstiffness = 1.0\nvelocity = 2\n",
+         "attachments[0].velocity", "three numbers"),
         ("[[attachments]]\nvertex = 3\nstiffness = 10.0\n", "attachments[0].target", "missing"),
         ("[[attachments]]\nvertex = 3\ntarget = [0, 0, 0]\n", "attachments[0].stiffness", "missing"),
         ("[[attachments]]\nvertex = 3\ntarget = [0, 0, 0]\nstiffness = 1.0\nanchor = 2\n", "attachments[0].anchor",
@@ -402,7 +407,7 @@ def test_output_is_checked_before_the_simulation(tmp_path, tiny_scene, monkeypat
     def no_simulation(*args, **kwargs):
         raise AssertionError("the model was built before the output was checked")
 
-    monkeypatch.setattr(wcut.scene, "build_model", no_simulation)
+    monkeypatch.setattr(wcut.scene, "_build", no_simulation)
     if output.startswith("missing_parent_is_fine"):
         with pytest.raises(AssertionError, match="model was built"):  # the check passed
             run_scene(load_scene(tiny_scene), tmp_path / output, frames=1, progress=False)
@@ -543,3 +548,267 @@ def test_quadratic_scene_runs_and_writes_the_tessellated_surface(tmp_path, write
         assert len(counts) == faces * 4 ** level
         points = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode(result.frames)))
         assert np.isfinite(points).all() and points[:, 2].min() < -1e-4  # it sags under gravity
+
+
+# ---------------------------------------------------------------------------------------------
+# thin shells: sheet generators, triangle files, attachments on a sheet, a sheet's run
+
+#: a 0.2 m square sheet of 4 x 4 cells (32 triangles, 81 nodes) hung by its two corners at y = 0.2
+SHEET = """
+name = "sheet"
+
+[mesh]
+generator = "rectangle_sheet"
+cells = [4, 4]
+size = [0.2, 0.2]
+thickness = 1e-3
+
+[material]
+youngs_modulus = 1.0e6
+
+[constraints]
+fixed_boxes = [[[-0.001, 0.199, -1.0], [0.001, 0.201, 1.0]], [[0.199, 0.199, -1.0], [0.201, 0.201, 1.0]]]
+
+[solver]
+dt = 0.01
+cg_iterations = 30
+
+[simulation]
+duration = 0.1
+fps = 30
+"""
+
+
+def test_sheet_scene_runs_to_a_valid_animation(tmp_path, write_scene):
+    from pxr import Usd, UsdGeom
+
+    scene = load_scene(write_scene(tmp_path, SHEET, "sheet.toml"))
+    assert scene.mesh["order"] == 2 and scene.mesh["pattern"] == "alternate" and scene.mesh["thickness"] == 1e-3
+    out = tmp_path / "sheet.usda"
+    result = run_scene(scene, out, frames=3, progress=False)
+    assert (result.frames, result.elements, result.nodes) == (3, 32, 81)
+    assert validate_usd(out) == []
+    stage = Usd.Stage.Open(str(out))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/sheet"))
+    assert len(mesh.GetFaceVertexCountsAttr().Get(0)) == 32 * 4 ** 2  # output.subdivision = 2
+    rest = np.array(mesh.GetPointsAttr().Get(0))
+    last = np.array(mesh.GetPointsAttr().Get(3))
+    hung = np.isclose(rest[:, 1], 0.2) & (np.isclose(rest[:, 0], 0.0) | np.isclose(rest[:, 0], 0.2))
+    assert hung.sum() == 2 and np.allclose(last[hung], rest[hung], atol=1e-7)
+    assert np.isfinite(last).all() and last[:, 2].min() < -1e-3  # the free edge falls
+    colors = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("displayColor")
+    assert np.ptp(np.asarray(colors.Get(Usd.TimeCode(3))), axis=0).max() > 0.05  # stress colours vary
+
+
+def test_shell_von_mises_of_a_uniform_stretch(tmp_path, write_scene):
+    """vertex_von_mises of a sheet stretched by 1 % along x and held along y: the plane stress
+    sigma_xx = E eps / (1 - nu^2), sigma_yy = nu sigma_xx, at every node."""
+    from wcut.stress import vertex_von_mises
+
+    scene = load_scene(write_scene(tmp_path, SHEET, "sheet.toml"))
+    model, _, _ = build_model(scene)
+    state = model.state()
+    q = model.mesh.vertices.copy()
+    q[:, 0] *= 1.01
+    state.particle_q.assign(q.astype(np.float32))
+    E, nu = 1.0e6, 0.3
+    sxx = E * 0.01 / (1 - nu ** 2)
+    syy = nu * sxx
+    expected = np.sqrt(sxx ** 2 - sxx * syy + syy ** 2)
+    vm = vertex_von_mises(model, state)
+    assert vm.shape == (81,)
+    np.testing.assert_allclose(vm, expected, rtol=2e-3)
+    assert np.abs(vertex_von_mises(model, model.state())).max() < 1e-3 * expected  # at rest
+
+
+@pytest.mark.parametrize("mesh_table, triangles, corners, generate", [
+    ('generator = "rectangle_sheet"\ncells = [3, 2]\nsize = [0.3, 0.1]\norigin = [1, 2, 3]\npattern = "right"',
+     12, 12, lambda: wcut.rectangle_sheet(3, 2, (0.3, 0.1), origin=(1, 2, 3), pattern="right")),
+    ('generator = "l_shape_sheet"\ncells = [4, 4]\nsize = [0.2, 0.2]',
+     24, 21, lambda: wcut.l_shape_sheet(2, 0.2)),
+    ('generator = "l_shape_sheet"', 96, 65, lambda: wcut.l_shape_sheet(4, 0.2)),
+    ('generator = "precut_sheet"\ncells = [4, 4]\nsize = [0.2, 0.2]',  # default notch: half the width
+     32, 25 + 2, lambda: wcut.precut_sheet(4, 4, (0.2, 0.2), 0.1)),
+    ('generator = "precut_sheet"\ncells = [6, 4]\nsize = [0.3, 0.2]\nnotch_length = 0.2\npattern = "right"',
+     48, 35 + 4, lambda: wcut.precut_sheet(6, 4, (0.3, 0.2), 0.2, pattern="right")),
+])
+def test_sheet_generators_build_shell_meshes(tmp_path, write_scene, mesh_table, triangles, corners, generate):
+    mesh = build_mesh(load_scene(write_scene(tmp_path, f"[mesh]\n{mesh_table}\n")))
+    assert isinstance(mesh, wcut.ShellMesh)
+    assert mesh.triangle_count == triangles and len(mesh.corner_ids) == corners
+    expected = generate()
+    assert np.array_equal(mesh.triangles, expected.triangles) and np.allclose(mesh.vertices, expected.vertices)
+
+
+@pytest.mark.parametrize("mesh_table, key, words", [
+    ('generator = "disc_sheet"', "mesh.generator", "unknown generator 'disc_sheet'"),
+    ('generator = "beam"\nthickness = 1e-3', "mesh.thickness", "only for shells"),
+    ('generator = "rectangle_sheet"\nthickness = -1e-3', "mesh.thickness", "must be positive"),
+    ('generator = "rectangle_sheet"\ncells = [4, 4, 4]', "mesh.cells", "two integers [nx, ny]"),
+    ('generator = "rectangle_sheet"\ncells = [4]', "mesh.cells", "two integers [nx, ny]"),
+    ('generator = "rectangle_sheet"\ncells = [4, 0]', "mesh.cells", "at least one cell"),
+    ('generator = "rectangle_sheet"\nsize = [0.2, 0.2, 0.2]', "mesh.size", "two lengths"),
+    ('generator = "rectangle_sheet"\norder = 1', "mesh.order", "expected 2 or no mesh.order"),
+    ('generator = "rectangle_sheet"\npattern = "left"', "mesh.pattern", "'alternate', 'right'"),
+    ('generator = "rectangle_sheet"\ntets_per_hex = 6', "mesh.tets_per_hex", "only for the beam"),
+    ('generator = "rectangle_sheet"\nnotch_length = 0.1', "mesh.notch_length", "only for generator = 'precut_sheet'"),
+    ('generator = "beam"\npattern = "right"', "mesh.pattern", "only for the sheet generators"),
+    ('generator = "l_shape_sheet"\ncells = [3, 3]', "mesh.cells", "two equal even integers"),
+    ('generator = "l_shape_sheet"\ncells = [4, 6]', "mesh.cells", "two equal even integers"),
+    ('generator = "l_shape_sheet"\nsize = [0.2, 0.3]', "mesh.size", "two equal lengths"),
+    ('generator = "precut_sheet"\ncells = [4, 5]', "mesh.cells", "even ny"),
+    ('generator = "precut_sheet"\nsize = [0.2, 0.2]\nnotch_length = 0.2', "mesh.notch_length", "1..7 cells"),
+    ('generator = "precut_sheet"\nsize = [0.2, 0.2]\nnotch_length = 0.01', "mesh.notch_length", "rounds to 0 cells"),
+])
+def test_bad_sheet_keys_name_the_key(tmp_path, write_scene, mesh_table, key, words):
+    message = _scene_error(tmp_path, write_scene, f"[mesh]\n{mesh_table}\n")
+    assert f"{key}:" in message and words in message, message
+
+
+def test_triangle_files_are_shells(tmp_path, write_scene):
+    """A file of triangle6 or triangle cells (no tetrahedra) is a ShellMesh; fixed_indices and
+    vertex attachments use the file's numbering; mesh.order must be 2 or absent."""
+    sheet = wcut.rectangle_sheet(2, 2, size=(0.1, 0.1))
+    sheet.save(tmp_path / "sheet6.vtu")
+    meshio.write(tmp_path / "sheet3.vtu", meshio.Mesh(sheet.vertices[:9], [("triangle", sheet.triangles[:, :3])]))
+    for name in ("sheet6.vtu", "sheet3.vtu"):
+        text = (f'[mesh]\npath = "{name}"\nthickness = 2e-3\n[constraints]\nfixed_indices = [0, 2]\n'
+                "[[attachments]]\nvertex = 8\ntarget = [0.1, 0.1, 0.05]\nstiffness = 1.0\n")
+        scene = load_scene(write_scene(tmp_path, text))
+        mesh = build_mesh(scene)
+        assert isinstance(mesh, wcut.ShellMesh) and mesh.triangle_count == 8 and mesh.vertex_count == 25
+        model, _, _ = build_model(scene, mesh=mesh)
+        assert model.tri_count == 8 and np.allclose(model.tri_thickness.numpy(), 2e-3)
+        assert np.flatnonzero(model.particle_fixed.numpy()).tolist() == [0, 2]
+        assert model.attachment_indices.numpy()[0, 0] == 8
+    scene = load_scene(write_scene(tmp_path, '[mesh]\npath = "sheet6.vtu"\norder = 1\n', "order1.toml"))
+    with pytest.raises(SceneError, match=r"^order1\.toml: mesh\.order: sheet6\.vtu holds triangles"):
+        build_mesh(scene)  # the file says it is a shell, so the check is made once it is read
+
+
+def test_thickness_for_a_tetrahedral_file_names_the_key(tmp_path, write_scene, small_beam):
+    small_beam.save(tmp_path / "beam.vtu")
+    scene = load_scene(write_scene(tmp_path, '[mesh]\npath = "beam.vtu"\nthickness = 1e-3\n'))
+    with pytest.raises(SceneError, match=r"mesh\.thickness: only for shells, and beam\.vtu holds tetrahedra"):
+        build_mesh(scene)
+
+
+def test_attachment_points_on_a_sheet():
+    """A point in a corner triangle gets its barycentric weights; a point off the sheet's plane
+    is projected onto it; a point beyond the sheet's edge is held at the edge."""
+    from wcut.model import Attachments
+
+    sheet = wcut.rectangle_sheet(4, 4, size=(0.2, 0.2))
+    t = 5
+    corners = sheet.triangles[t, :3]
+    w = np.array([0.2, 0.3, 0.5])
+    inside = w @ sheet.vertices[corners]
+    points = [inside, inside + [0.0, 0.0, 0.03], [-0.05, 0.125, 0.01]]
+    attached = Attachments.at_points(sheet, points, 7.0)
+    assert attached.indices.shape == (3, 4) and np.allclose(attached.stiffness, 7.0)
+    for s in (0, 1):
+        assert attached.indices[s].tolist() == corners.tolist() + [corners[0]]
+        np.testing.assert_allclose(attached.weights[s], [*w, 0.0], atol=1e-12)
+    assert np.allclose(attached.weights.sum(axis=1), 1.0) and np.all(attached.weights >= 0.0)
+    edge = np.einsum("j,jk->k", attached.weights[2], sheet.vertices[attached.indices[2]])
+    assert edge[0] == pytest.approx(0.0, abs=1e-12) and edge[2] == 0.0 and 0.1 <= edge[1] <= 0.15
+
+
+def test_point_attachment_and_forces_on_a_sheet_scene(tmp_path, write_scene):
+    text = SHEET + (
+        "[[attachments]]\npoint = [0.07, 0.12, 0.02]\ntarget = [0.07, 0.12, 0.1]\nstiffness = 3.0\n"
+        "[[loads.force]]\nbox = [[-1, -0.001, -1], [1, 0.001, 1]]\ntotal = [0.0, 0.0, -0.9]\n"
+    )
+    scene = load_scene(write_scene(tmp_path, text, "sheet.toml"))
+    mesh = build_mesh(scene)
+    model, control, forces = build_model(scene, mesh=mesh)
+    assert np.allclose(model.attachment_rest_points.numpy(), [[0.07, 0.12, 0.0]], atol=1e-7)
+    assert np.allclose(control.attachment_target.numpy(), [[0.07, 0.12, 0.1]])
+    edge = mesh.vertices_in_box((-1, -0.001, -1), (1, 0.001, 1))
+    assert len(edge) == 9  # 5 corners and 4 edge nodes along y = 0
+    assert np.allclose(forces[edge], [0.0, 0.0, -0.1]) and np.allclose(forces.sum(axis=0), [0.0, 0.0, -0.9])
+
+
+def test_a_blade_does_not_cut_a_shell(tmp_path, write_scene):
+    text = SHEET + ("[cut]\nframes = [1, 2]\n"
+                    "blade = [[[0.1, -0.1, 0.1], [0.1, 0.3, 0.1]], [[0.1, -0.1, -0.1], [0.1, 0.3, -0.1]]]\n")
+    with pytest.raises(SceneError, match="cut: a blade cuts solids only"):
+        run_scene(load_scene(write_scene(tmp_path, text, "sheet.toml")), tmp_path / "x.usda", progress=False)
+
+
+def test_box_attachments_hold_every_vertex_and_move_at_their_velocity(tmp_path, write_scene):
+    """A box grabs each of its vertices at its rest position; with a velocity the targets move
+    v t: a stiffly held free edge follows them (frame 3 at 30 fps: 0.1 s, 1 mm at 1 cm/s)."""
+    from wcut.scene import build_model
+
+    text = SHEET + ("[[attachments]]\nbox = [[-1, -0.001, -1], [1, 0.001, 1]]\nstiffness = 1.0e4\n"
+                    "velocity = [0.0, -0.01, 0.0]\n")
+    text = text.replace("dt = 0.01", "dt = 0.002")
+    scene = load_scene(write_scene(tmp_path, text, "sheet.toml"))
+    model, control, _ = build_model(scene)
+    held = model.mesh.vertices_in_box([-1, -0.001, -1], [1, 0.001, 1])
+    assert len(held) == 9 and model.attachment_count == 9
+    assert np.allclose(control.attachment_target.numpy(), model.mesh.vertices[held])
+    from pxr import Usd, UsdGeom
+
+    out = tmp_path / "sheet.usdc"
+    run_scene(scene, out, frames=3, progress=False)
+    stage = Usd.Stage.Open(str(out))  # kept: its prims expire with it
+    points = UsdGeom.Mesh(stage.GetPrimAtPath("/World/sheet")).GetPointsAttr()
+    rest, last = np.array(points.Get(0)), np.array(points.Get(3))
+    edge = np.isclose(rest[:, 1], 0.0)
+    assert (last[edge, 1] - rest[edge, 1]) == pytest.approx(-0.001, abs=1e-4)
+
+
+FRACTURE = """
+[fracture]
+strength = 1.0e4
+variant = "material"
+max_cracks_per_step = 2
+"""
+
+
+def test_fracture_section_reaches_the_shell_fracture(tmp_path, write_scene, monkeypatch):
+    """A sheet hung by two corners under gravity, weak enough to tear: [fracture] builds a
+    ShellFracture with its settings, the run tears the sheet (advances recorded, the mesh grows
+    nodes) and stays finite."""
+    import wcut.scene as scene_module
+
+    scene = load_scene(write_scene(tmp_path, SHEET + FRACTURE, "sheet.toml"))
+    assert scene.fracture == {"strength": 1.0e4, "variant": "material", "max_cracks_per_step": 2,
+                              "smoothing": "max", "direction_smoothing": "weighted", "min_quality": None}
+    made = []
+    build = scene_module._fracture
+    monkeypatch.setattr(scene_module, "_fracture", lambda settings, mesh: made.append(build(settings, mesh))
+                        or made[-1])
+    result = run_scene(scene, tmp_path / "sheet.usda", frames=3, progress=False)
+    fracture = made[0]
+    assert (fracture.strength, fracture.variant, fracture.max_cracks_per_step) == (1.0e4, "material", 2)
+    assert result.crack_events == len(fracture.events) > 0 and result.nodes > 81
+    steps = [e.step for e in fracture.events]
+    assert max(steps.count(s) for s in set(steps)) <= 2
+
+
+@pytest.mark.parametrize(
+    "text, key, words",
+    [
+        ("[fracture]\nvariant = 'none'\n", "fracture.strength", "missing"),
+        ("[fracture]\nstrength = -1.0\n", "fracture.strength", "positive"),
+        ("[fracture]\nstrength = 1.0\nvariant = 'snap'\n", "fracture.variant", "unknown variant"),
+        ("[fracture]\nstrength = 1.0\nmax_cracks_per_step = 0\n", "fracture.max_cracks_per_step", "1.."),
+        ("[fracture]\nstrength = 1.0\nsmoothing = 'mean'\n", "fracture.smoothing", "'max' or 'weighted'"),
+        ("[fracture]\nstrength = 1.0\nmin_quality = 1.5\n", "fracture.min_quality", "[0, 1)"),
+        ("[fracture]\nstrength = 1.0\nspeed = 1\n", "fracture.speed", "unknown key"),
+    ],
+)
+def test_bad_fracture_section_names_the_key(tmp_path, write_scene, text, key, words):
+    message = _scene_error(tmp_path, write_scene, SHEET + text)
+    assert f"{key}:" in message and words in message, message
+
+
+def test_fracture_of_a_solid_is_refused(tmp_path, tiny_scene):
+    scene = load_scene(tiny_scene)
+    scene.fracture = {"strength": 1.0, "variant": "none", "max_cracks_per_step": 1, "smoothing": "max",
+                      "direction_smoothing": "weighted", "min_quality": None}
+    with pytest.raises(SceneError, match="fracture: fracture is simulated on shells only"):
+        run_scene(scene, tmp_path / "x.usda", progress=False)

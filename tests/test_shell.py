@@ -8,7 +8,7 @@ import pytest
 
 from wcut import shell
 from wcut.errors import ModelError
-from wcut.mesh import ShellMesh, rectangle_sheet
+from wcut.mesh import ShellMesh, beam, rectangle_sheet
 from wcut.model import Model
 from wcut.solver import SolverCorotational
 
@@ -78,8 +78,8 @@ def test_shell_model_arrays():
     assert np.allclose(model.tri_rest_area.numpy(), 0.005)
     with pytest.raises(ModelError, match="thickness"):
         Model(mesh, thickness=0.0)
-    with pytest.raises(ModelError, match="shells"):
-        model.rebuild(mesh, None)
+    with pytest.raises(ModelError, match="a shell model is rebuilt from a ShellMesh"):
+        model.rebuild(beam(1, 1, 1), None)
 
 
 def test_a_sheet_hung_by_two_corners_droops_and_stays_finite_over_1000_steps():

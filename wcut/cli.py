@@ -23,6 +23,8 @@ def _cmd_run(args) -> int:
     print(f"mean step: {result.mean_step_ms:.3f} ms ({result.steps} steps)")
     print(f"nodes: {result.nodes}")
     print(f"elements: {result.elements}")
+    if result.crack_events:
+        print(f"crack advances: {result.crack_events}")
     print(f"wrote {result.output}")
     return 0
 

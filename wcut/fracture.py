@@ -22,6 +22,8 @@ plane. Bad input (wrong shapes, NaN, out-of-range indices, a non-positive streng
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .errors import FractureError
@@ -304,17 +306,29 @@ def nodal_stress(model, state, rule: str = "max") -> tuple[np.ndarray, np.ndarra
 
     ``rule``: ``"max"`` (the thesis: the element value with the highest sigma_P,+) or
     ``"weighted"`` (the rest-area-weighted mean)."""
+    (stress,), normals = _nodal_stresses(model, state, (rule,))
+    return stress, normals
+
+
+def _nodal_stresses(model, state, rules, gauss_stress=None) -> tuple[list[np.ndarray], np.ndarray]:
+    """:func:`nodal_stress` by each of ``rules`` from one stress evaluation (``gauss_stress``,
+    (T, 3, 3, 3) Pa, when the caller has it), and the normals."""
     from .shell import vertex_normals
     from .stress import shell_gauss_stress
 
-    if rule not in ("max", "weighted"):
-        raise FractureError(f"rule = {rule!r}; expected 'max' or 'weighted'")
+    for rule in rules:
+        if rule not in ("max", "weighted"):
+            raise FractureError(f"rule = {rule!r}; expected 'max' or 'weighted'")
     triangles = model.tri_indices.numpy().reshape(-1, 6).astype(np.int64)
     normals = vertex_normals(state.particle_q.numpy().astype(np.float64), triangles)
-    node_stress = extrapolate_to_nodes(shell_gauss_stress(model, state))
-    if rule == "max":
-        return smooth_max_principal(triangles, node_stress, normals, model.particle_count), normals
-    return smooth_weighted(triangles, node_stress, model.tri_rest_area.numpy(), model.particle_count), normals
+    gauss_stress = shell_gauss_stress(model, state) if gauss_stress is None else gauss_stress
+    node_stress = extrapolate_to_nodes(gauss_stress)
+    smoothed = {}
+    for rule in set(rules):
+        smoothed[rule] = (smooth_max_principal(triangles, node_stress, normals, model.particle_count)
+                          if rule == "max" else
+                          smooth_weighted(triangles, node_stress, model.tri_rest_area.numpy(), model.particle_count))
+    return [smoothed[rule] for rule in rules], normals
 
 
 # --- criterion ----------------------------------------------------------------------------
@@ -337,3 +351,404 @@ def fracture_candidates(sigma_plus, strength) -> np.ndarray:
         raise FractureError(f"strength = {strength!r} Pa; expected a finite positive tensile strength")
     broken = np.flatnonzero(sigma > strength)
     return broken[np.argsort(-sigma[broken], kind="stable")].astype(np.int64)
+
+
+# --- crack propagation --------------------------------------------------------------------
+
+#: How a crack follows its direction (thesis 6.2, figure 6.16, and its future work):
+#: ``"none"`` opens the existing edge closest to the crack direction; ``"spatial"`` also snaps
+#: the edge's far corner to the crack line drawn in the rest configuration with the deformed
+#: direction (figure 6.16, middle); ``"material"`` snaps it to the crack line mapped to the
+#: rest configuration through the element (figure 6.14; figure 6.16, right); ``"split"``
+#: first splits the triangle ahead of the tip into four (red-green refinement, exact
+#: geometry) and snaps only nodes the refinement made corners, so the coarse mesh never moves.
+VARIANTS = ("none", "spatial", "material", "split")
+
+
+@dataclass(frozen=True)
+class CrackEvent:
+    """One advance of a crack: the edges opened at a node in one fracture step.
+
+    Attributes:
+        step: the fracture step (call of :meth:`ShellFracture.step`, from 0).
+        node: the corner the crack advanced from (index before the event).
+        sigma_plus: its maximal principal stress (Pa).
+        direction: (3,) unit crack direction in the rest configuration that the edges were
+            chosen against (the deformed direction for ``"none"`` and ``"spatial"``, mapped
+            to the rest configuration for ``"material"`` and ``"split"``).
+        segments: (k, 2, 3) rest positions (m) of the opened edges' corners, from the node.
+        initiation: True when the node had no opened edge (the crack starts there).
+        snapped: True when a far corner was moved onto the crack line.
+        refined: True when a triangle was split before the edge was chosen.
+    """
+
+    step: int
+    node: int
+    sigma_plus: float
+    direction: np.ndarray
+    segments: np.ndarray
+    initiation: bool
+    snapped: bool
+    refined: bool
+
+
+class ShellFracture:
+    """Fracture of a quadratic shell driven by the maximal principal stress (thesis 6.2).
+
+    Each :meth:`step` reads the smoothed nodal stress, takes the corners where
+    ``sigma_P,+ > strength`` (eq 6.3), most stressed first, and advances at most
+    ``max_cracks_per_step`` of them: at a corner on the boundary (a crack tip, a notch, a
+    free edge) it opens the one interior edge closest to the crack direction; inside the
+    sheet it opens the two edges closest to either way along it, so the crack starts with two
+    tips. "Closest" is the thesis's rule of figure 6.13 (dark green): the smallest angle
+    between the crack direction and the vector from the node to the edge's far corner. The
+    crack direction is perpendicular to the principal direction in the tangent plane
+    (:func:`crack_direction`). Boundary and fixed nodes are never snapped. Nodes touched by one
+    advance are not advanced again in the same step (their stress is stale).
+
+    Args:
+        mesh: the rest mesh of the model the steps will be given.
+        strength: ultimate tensile strength sigma_f (Pa), > 0.
+        variant: one of :data:`VARIANTS`.
+        max_cracks_per_step: the most advances per step (>= 1): a bound on crack speed,
+            ``max_cracks_per_step`` edges per tip per step at most.
+        smoothing: the nodal stress the criterion reads: ``"max"`` (the thesis) or
+            ``"weighted"`` (:func:`nodal_stress`).
+        direction_smoothing: the nodal stress the crack direction is read from, default
+            ``"weighted"``: the max rule hands a node the tensor of a single element beside it,
+            whose principal direction near a crack tip is tilted by the singular field (10 to
+            25 degrees on the precut sheet), while the area-weighted mean around the tip is
+            symmetric and gives the mode-I direction.
+        min_quality: the smallest corner-triangle quality a snap or a split may leave
+            (:data:`wcut.topology.shell.MIN_MOVE_QUALITY`); below it the snap or split is
+            skipped and the crack opens the existing edge.
+
+    Attributes:
+        mesh: the current rest mesh (after every change so far).
+        events: the :class:`CrackEvent` of every advance, in order.
+        rest_area: the sheet's rest area (m^2) at the start. Opening and splitting keep it
+            exactly; a snap keeps it on a flat sheet, and on a curved one moves nodes on the
+            element surfaces, which re-interpolates the curved geometry (relative area
+            changes of 1e-7 on a 6 cm cylinder).
+    """
+
+    def __init__(self, mesh, strength, *, variant: str = "none", max_cracks_per_step: int = 1,
+                 smoothing: str = "max", direction_smoothing: str = "weighted", min_quality: float | None = None):
+        from .mesh import ShellMesh
+        from .topology.shell import MIN_MOVE_QUALITY
+
+        if not isinstance(mesh, ShellMesh):
+            raise FractureError(f"mesh: expected a ShellMesh, got {type(mesh).__name__}")
+        fracture_candidates(np.zeros(1), strength)  # the strength checks
+        if variant not in VARIANTS:
+            raise FractureError(f"variant = {variant!r}; expected one of {', '.join(VARIANTS)}")
+        if isinstance(max_cracks_per_step, bool) or not isinstance(max_cracks_per_step, (int, np.integer)) \
+                or max_cracks_per_step < 1:
+            raise FractureError(f"max_cracks_per_step = {max_cracks_per_step!r}; expected an integer >= 1")
+        for name, rule in (("smoothing", smoothing), ("direction_smoothing", direction_smoothing)):
+            if rule not in ("max", "weighted"):
+                raise FractureError(f"{name} = {rule!r}; expected 'max' or 'weighted'")
+        min_quality = MIN_MOVE_QUALITY if min_quality is None else float(min_quality)
+        if not 0.0 <= min_quality < 1.0:
+            raise FractureError(f"min_quality = {min_quality}; expected a value in [0, 1)")
+        self.mesh = mesh
+        self.strength = float(strength)
+        self.variant = variant
+        self.max_cracks_per_step = int(max_cracks_per_step)
+        self.smoothing = smoothing
+        self.direction_smoothing = direction_smoothing
+        self.min_quality = min_quality
+        self.rest_area = mesh.area()
+        self.events: list[CrackEvent] = []
+        self._step = 0
+        self._tips: set[int] = set()  # far corners of the edges opened so far
+        # corners of the mesh as given: the split variant never moves them
+        self._pinned = np.zeros(mesh.vertex_count, dtype=bool)
+        self._pinned[mesh.corner_ids] = True
+        self._split_area = 0.3 * float(mesh.areas().mean())  # below it a triangle is refined already
+
+    def step(self, model, state):
+        """Advance the cracks of ``model`` (built from :attr:`mesh`) in ``state``.
+
+        Returns the :class:`wcut.topology.TopologyChange` from the model's mesh to the new
+        :attr:`mesh` (give both to :meth:`wcut.model.Model.rebuild`), or None when nothing
+        broke."""
+        from .topology.change import compose
+
+        if model.particle_count != self.mesh.vertex_count or model.tri_count != self.mesh.triangle_count:
+            raise FractureError(f"step: the model ({model.particle_count} nodes, {model.tri_count} triangles) is "
+                                f"not built from this fracture's mesh ({self.mesh.vertex_count} nodes, "
+                                f"{self.mesh.triangle_count} triangles); rebuild it after every change")
+        from .stress import shell_gauss_stress
+
+        step, self._step = self._step, self._step + 1
+        gauss_stress = shell_gauss_stress(model, state)
+        # No node value exceeds 7/3 of the largest Gauss-point tensor (the extrapolation's row
+        # sums of magnitudes, 5/3 + 1/3 + 1/3), and sigma_P,+ <= |S|_F: far from breaking,
+        # the smoothing is skipped.
+        if 7.0 / 3.0 * np.sqrt(np.einsum("tgij,tgij->tg", gauss_stress, gauss_stress).max()) <= self.strength:
+            return None
+        (stress, oriented), normals = _nodal_stresses(model, state, (self.smoothing, self.direction_smoothing),
+                                                      gauss_stress)
+        corners = self.mesh.corner_ids
+        sigma_plus, _, _ = principal_stresses(stress[corners], normals[corners])
+        _, _, principal = principal_stresses(oriented[corners], normals[corners])
+        broken = fracture_candidates(sigma_plus, self.strength)
+        if not len(broken):
+            return None
+        fixed = model.particle_fixed.numpy() == 1
+        x = state.particle_q.numpy().astype(np.float64)
+        mesh, change, stale, count = self.mesh, None, set(), 0
+        for i in broken.tolist():
+            v = int(corners[i])
+            if count == self.max_cracks_per_step:
+                break
+            if v in stale:
+                continue
+            d = crack_direction(principal[i], normals[v])
+            advance = _Advance(self, mesh, x, fixed, v, d)
+            result = advance.run()
+            if result is None:
+                continue
+            mesh, event_change = result
+            stale |= advance.touched
+            x = _carry(x, event_change)
+            fixed = _carry(fixed[:, None].astype(float), event_change)[:, 0] == 1.0
+            self._pinned = _carry(self._pinned[:, None].astype(float), event_change)[:, 0] == 1.0
+            change = event_change if change is None else compose(change, event_change)
+            self.events.append(CrackEvent(step=step, node=v, sigma_plus=float(sigma_plus[i]),
+                                          direction=advance.direction, segments=advance.segments(mesh),
+                                          initiation=advance.initiation, snapped=advance.snapped,
+                                          refined=advance.refined))
+            count += 1
+        self.mesh = mesh
+        return change
+
+
+def _carry(values: np.ndarray, change) -> np.ndarray:
+    """Per-vertex ``values`` (N, k) after ``change`` (its vertex weights)."""
+    return np.einsum("vk,vkj->vj", change.vertex_weights, values[change.vertex_sources])
+
+
+def _unit_vector(v: np.ndarray) -> np.ndarray | None:
+    n = np.linalg.norm(v)
+    return v / n if n > 1e-300 else None
+
+
+class _Advance:
+    """One advance of a crack at corner ``v`` with deformed crack direction ``d``: refine
+    (split variant), choose the edges, snap their far corners, open the edges."""
+
+    def __init__(self, fracture: ShellFracture, mesh, x, fixed, v: int, d: np.ndarray):
+        self.fracture, self.mesh, self.x, self.fixed, self.v, self.d = fracture, mesh, x, fixed, v, d
+        self.snapped = self.refined = False
+        self.touched: set[int] = set()
+        self.change = None
+        self.edges: list[tuple[int, int]] = []
+
+    # -- the mesh around v -------------------------------------------------------------------
+
+    def _users(self):
+        from .topology.shell import edge_users
+
+        return edge_users(self.mesh.triangles)
+
+    def _around(self, v: int) -> list[int]:
+        return np.flatnonzero((self.mesh.triangles == v).any(axis=1)).tolist()
+
+    def _boundary_corners(self, users) -> set[int]:
+        return {c for key, u in users.items() if len(u) == 1 for c in key}
+
+    def _apply(self, result) -> None:
+        from .topology.change import compose
+
+        self.mesh, change = result
+        self.x = _carry(self.x, change)
+        self.fixed = _carry(self.fixed[:, None].astype(float), change)[:, 0] == 1.0
+        self.pinned = _carry(self.pinned[:, None].astype(float), change)[:, 0] == 1.0
+        self.change = change if self.change is None else compose(self.change, change)
+
+    # -- direction ---------------------------------------------------------------------------
+
+    def _material_direction(self, users) -> tuple[np.ndarray, int]:
+        """The crack direction in the rest configuration (figure 6.14): a point a quarter of
+        an edge along the deformed crack line is located in the element it lies in, and its
+        material point gives the direction. Returns it and that element (the one ahead).
+
+        At a boundary corner the point is taken on the side of the line that goes into the
+        sheet: at a crack tip the other side also lies in the sheet (on a face of the opened
+        crack), and a direction read there, through the opening, is distorted."""
+        from .shell import vertex_normals
+        from .topology.shell import locate
+
+        v, x, X, tris = self.v, self.x, self.mesh.vertices, self.mesh.triangles
+        around = self._around(v)
+        corners = np.unique(tris[around, :3])
+        step = 0.25 * float(np.mean(np.linalg.norm(x[corners] - x[v], axis=1)[corners != v]))
+        sign = 1.0
+        if not self._interior_of(v, users) and self.d @ self._inward(users, x) < 0.0:
+            sign = -1.0
+        t, L, _ = locate(x, tris, around, x[v] + sign * step * self.d)
+        material = shell_point(X, tris, t, L) - X[v]
+        normal = vertex_normals(X, tris[around])[v]
+        D = _unit_vector(material - (material @ normal) * normal)
+        return (sign * D if D is not None else self.d), t
+
+    # -- the advance -------------------------------------------------------------------------
+
+    def run(self):
+        from .topology.mesh import TopologyError
+        from .topology.shell import move_nodes, open_edges
+
+        f, v = self.fracture, self.v
+        self.pinned = f._pinned
+        users = self._users()
+        self.initiation = v not in f._tips
+        material = f.variant in ("material", "split")
+        if material:
+            self.direction, ahead = self._material_direction(users)
+        else:
+            self.direction, ahead = self.d, -1
+        if f.variant == "split":
+            self._refine(ahead, users)
+            users = self._users()
+        points = self.mesh.vertices if material else self.x
+        edges = self._choose(users, points)
+        if edges is None:
+            return None
+        moves = self._snap_moves(edges, users)
+        if moves:
+            try:
+                self._apply(move_nodes(self.mesh, moves, f.min_quality))
+                self.snapped = True
+            except TopologyError:
+                pass
+        for _, w in edges:
+            self.touched |= set(np.unique(self.mesh.triangles[self._around(v) + self._around(w)]).tolist())
+        try:
+            self._apply(open_edges(self.mesh, edges))
+        except TopologyError:
+            return None
+        self.edges = edges
+        f._tips.discard(v)
+        f._tips.update(w for _, w in edges)
+        return self.mesh, self.change
+
+    def _interior_of(self, v, users) -> bool:
+        return not any(len(u) == 1 for key, u in users.items() if v in key)
+
+    def _refine(self, ahead: int, users) -> None:
+        """Split the triangle ahead of the tip (the one the crack direction enters) into four
+        when it is not refined already and every piece keeps its quality."""
+        from .topology.mesh import TopologyError
+        from .topology.shell import split_triangle, triangle_qualities
+
+        f = self.fracture
+        if ahead < 0 or self.mesh.areas()[ahead] < f._split_area:
+            return
+        try:
+            mesh, change = split_triangle(self.mesh, ahead)
+        except TopologyError:
+            return
+        pieces = np.flatnonzero(change.element_rest_changed)
+        if triangle_qualities(mesh.vertices, mesh.triangles[pieces]).min() < f.min_quality:
+            return
+        self._apply((mesh, change))
+        self.touched |= set(np.unique(mesh.triangles[pieces]).tolist())
+        self.refined = True
+
+    def _choose(self, users, points) -> list[tuple[int, int]] | None:
+        """The edges to open (figure 6.13, dark green): from ``v``, the interior edge whose far
+        corner makes the smallest angle with the crack line (one edge at a boundary node, the
+        best on either side inside the sheet)."""
+        v, D = self.v, self.direction
+        options = []
+        for key, u in users.items():
+            if v in key and len(u) == 2:
+                w = key[0] if key[1] == v else key[1]
+                e = _unit_vector(points[w] - points[v])
+                if e is not None:
+                    options.append((float(e @ D), w))
+        if not options:
+            return None
+        if not self._interior_of(v, users):  # one edge, into the sheet
+            sign = 1.0 if D @ self._inward(users, points) >= 0.0 else -1.0
+            ahead = [(sign * c, w) for c, w in options if sign * c > 0.0]
+            return [(v, max(ahead, key=lambda o: (o[0], -o[1]))[1])] if ahead else None
+        ahead = [o for o in options if o[0] > 0.0]
+        behind = [o for o in options if o[0] < 0.0]
+        if not ahead or not behind:
+            return None
+        return [(v, max(ahead, key=lambda o: (o[0], -o[1]))[1]), (v, min(behind, key=lambda o: (o[0], o[1]))[1])]
+
+    def _inward(self, users, points) -> np.ndarray:
+        """A direction from boundary corner ``v`` into the sheet: away from its boundary edges
+        (at a crack tip both run back along the crack), or, where they cancel (a straight
+        edge), towards the middle of its triangles."""
+        v = self.v
+        back = np.zeros(3)
+        for key, u in users.items():
+            if v in key and len(u) == 1:
+                e = _unit_vector(points[key[0] + key[1] - v] - points[v])
+                back += e if e is not None else 0.0
+        if np.linalg.norm(back) > 0.5:
+            return -back
+        return points[self.mesh.triangles[self._around(v), :3]].mean(axis=(0, 1)) - points[v]
+
+    def _snap_moves(self, edges, users) -> dict:
+        """The moves that put each edge's far corner on the crack line through ``v`` (and the
+        edge nodes of its edges halfway again), for a variant that snaps; boundary, fixed
+        and (split variant) original corners stay."""
+        from .shell import vertex_normals
+        from .topology.shell import locate, shape_weights
+
+        f = self.fracture
+        if f.variant == "none":
+            return {}
+        boundary = self._boundary_corners(users)
+        X, x, tris, v = self.mesh.vertices, self.x, self.mesh.triangles, self.v
+        moves = {}
+        for _, w in edges:
+            if w in boundary or self.fixed[w] or (f.variant == "split" and self.pinned[w]):
+                continue
+            around = self._around(w)
+            if f.variant == "spatial":
+                # the deformed line, and the same direction drawn in the rest configuration
+                normal = vertex_normals(X, tris[self._around(v)])[v]
+                d_rest = _unit_vector(self.d - (self.d @ normal) * normal)
+                if d_rest is None:
+                    continue
+                rest_w = X[v] + ((X[w] - X[v]) @ d_rest) * d_rest
+                rest_w = shell_point(X, tris, *locate(X, tris, around, rest_w)[:2])  # onto the surface
+                now_w = x[v] + ((x[w] - x[v]) @ self.d) * self.d
+                t, L, _ = locate(x, tris, around, now_w)
+            else:
+                rest_w = X[v] + ((X[w] - X[v]) @ self.direction) * self.direction
+                t, L, _ = locate(X, tris, around, rest_w)
+                rest_w = shell_point(X, tris, t, L)
+            moves[w] = (rest_w, shape_weights(tris, t, L))
+            for tri in tris[around].tolist():  # the edge nodes of w's edges follow it
+                for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
+                    if w not in (tri[i], tri[j]) or tri[3 + k] in moves:
+                        continue
+                    r, m = (tri[j] if tri[i] == w else tri[i]), tri[3 + k]
+                    rest_m = X[m] + 0.5 * (rest_w - X[w])
+                    config = x if f.variant == "spatial" else X
+                    target = config[m] + 0.5 * (shell_point(config, tris, t, L) - config[w])
+                    tm, Lm, _ = locate(config, tris, around, target)
+                    moves[m] = (rest_m if f.variant == "spatial" else shell_point(X, tris, tm, Lm),
+                                shape_weights(tris, tm, Lm))
+            self.touched |= set(np.unique(tris[around]).tolist())
+        return moves
+
+    def segments(self, mesh) -> np.ndarray:
+        """(k, 2, 3) rest positions of the opened edges' corners in ``mesh``, node first."""
+        X = mesh.vertices
+        return np.array([[X[a], X[b]] for a, b in self.edges])
+
+
+def shell_point(points: np.ndarray, triangles: np.ndarray, t: int, L: np.ndarray) -> np.ndarray:
+    """The point (3,) of element ``t`` at barycentric ``L`` with node positions ``points``."""
+    from .shell import shape_functions
+
+    return shape_functions(L)[0] @ points[triangles[t]]

@@ -126,15 +126,38 @@ class Attachments:
                            np.broadcast_to(np.asarray(stiffness, float), ids.shape).copy())
 
     @staticmethod
-    def at_points(mesh: TetMesh, points, stiffness) -> "Attachments":
+    def at_points(mesh: TetMesh | ShellMesh, points, stiffness) -> "Attachments":
         """One attachment per point, by barycentric weights in the element containing it.
 
         A point outside the mesh attaches to the element whose barycentric coordinates it
         violates least (weights are clamped to [0, 1] and renormalised).
+
+        On a :class:`~wcut.mesh.ShellMesh` a point is projected onto the plane of each flat
+        corner triangle (rest configuration), its barycentric coordinates there are clamped
+        and renormalised, and it attaches to the triangle whose clamped point is nearest
+        (three weights on the corners; the fourth slot repeats the first corner with weight 0).
         """
         points = np.atleast_2d(np.asarray(points, dtype=np.float64))
         if points.shape[1] != 3 or not np.isfinite(points).all():
             raise ModelError(f"attachment points must be finite (S, 3) coordinates, got shape {points.shape}")
+        springs = np.broadcast_to(np.asarray(stiffness, float), (len(points),)).copy()
+        if isinstance(mesh, ShellMesh):
+            corners = mesh.triangles[:, :3]
+            A = mesh.vertices[corners[:, 0]]  # (T, 3)
+            e1, e2 = mesh.vertices[corners[:, 1]] - A, mesh.vertices[corners[:, 2]] - A
+            d = points[:, None, :] - A[None]  # (S, T, 3)
+            g11, g12, g22 = (np.einsum("ti,ti->t", a, b) for a, b in ((e1, e1), (e1, e2), (e2, e2)))
+            r1, r2 = np.einsum("sti,ti->st", d, e1), np.einsum("sti,ti->st", d, e2)
+            det = g11 * g22 - g12 * g12  # positive: ShellMesh has no degenerate corner triangle
+            b1, b2 = (g22 * r1 - g12 * r2) / det, (g11 * r2 - g12 * r1) / det  # of the projected point
+            w = np.clip(np.stack([1.0 - b1 - b2, b1, b2], axis=-1), 0.0, 1.0)  # (S, T, 3)
+            w /= w.sum(axis=-1, keepdims=True)  # at least one coordinate is positive: they sum to 1
+            clamped = A + w[..., 1:2] * e1 + w[..., 2:3] * e2
+            t = np.argmin(np.linalg.norm(points[:, None, :] - clamped, axis=-1), axis=1)  # (S,)
+            s = np.arange(len(points))
+            indices = corners[t][:, [0, 1, 2, 0]].astype(np.int32)
+            weights = np.concatenate([w[s, t], np.zeros((len(points), 1))], axis=1)
+            return Attachments(indices, weights, springs)
         corners = mesh.tets[:, :4]  # a quadratic element: its corners' linear interpolation
         X3 = mesh.vertices[corners[:, 3]]
         Dm_inv = np.linalg.inv(edge_matrices(mesh.vertices, corners))
@@ -146,7 +169,7 @@ class Attachments:
             e = int(np.argmax(bary.min(axis=1)))
             w = np.clip(bary[e], 0.0, 1.0)
             indices[s], weights[s] = corners[e], w / w.sum()
-        return Attachments(indices, weights, np.broadcast_to(np.asarray(stiffness, float), (len(points),)).copy())
+        return Attachments(indices, weights, springs)
 
     def __len__(self) -> int:
         return len(self.stiffness)
@@ -499,10 +522,13 @@ class Model:
         rotations are inherited from the parent element (the warm start of the polar
         decomposition; per Gauss point for quadratic elements).
 
+        A shell (a crack opened by :mod:`wcut.topology.shell`) is laid out anew from ``mesh``,
+        each triangle with its parent's material and thickness; its state is carried the same way.
+
         Returns ``(model, state)``; the solver must be made again for the new model.
         """
         if self.tri_count or _is_shell(mesh):
-            raise ModelError("rebuild: shells are not rebuilt by a TopologyChange yet")
+            return self._rebuild_shell(mesh, change, state)
         if getattr(mesh, "order", 1) != self.tet_order:
             raise ModelError(f"rebuild: a mesh of order {getattr(mesh, 'order', 1)} for a model of order "
                              f"{self.tet_order}")
@@ -538,6 +564,31 @@ class Model:
                                _interpolated(state.particle_qd.numpy(), change, touched),
                                _forces_after(state.particle_f.numpy(), change, touched),
                                _take(state.tet_rotation.numpy(), parent, reparented))
+
+    def _rebuild_shell(self, mesh, change, state: State | None) -> tuple["Model", State | None]:
+        """:meth:`rebuild` of a shell: every triangle takes its parent's material and thickness,
+        and the rest data (frames, masses, hinges) are laid out anew from ``mesh``: a crack
+        changes the hinges around it, and a sheet is small enough to redo them all."""
+        if not (self.tri_count and _is_shell(mesh)):
+            raise ModelError("rebuild: a shell model is rebuilt from a ShellMesh, and a solid from a solid mesh")
+        if change.vertex_count_before != self.particle_count or change.element_count_before != self.tri_count:
+            raise ModelError(f"rebuild: the change is from a mesh of {change.vertex_count_before} vertices and "
+                             f"{change.element_count_before} triangles, the model has {self.particle_count} "
+                             f"and {self.tri_count}")
+        if change.vertex_count_after != mesh.vertex_count or change.element_count_after != mesh.triangle_count:
+            raise ModelError("rebuild: the change does not lead to this mesh")
+        parent, touched = change.element_parent, _touched_vertices(change)
+        rho, E, nu, h = (a.numpy().astype(np.float64)[parent] for a in (
+            self.tri_density, self.tri_youngs_modulus, self.tri_poisson_ratio, self.tri_thickness))
+        model = Model(mesh, density=rho, youngs_modulus=E, poisson_ratio=nu, thickness=h,
+                      rayleigh_mass=self.rayleigh_mass, rayleigh_stiffness=self.rayleigh_stiffness,
+                      gravity=tuple(self.gravity), fixed=self._fixed_after(change, touched) == 1,
+                      attachments=self._attachments_after(change), device=self.device)
+        if state is None:
+            return model, None
+        return model, State.of(model, _interpolated(state.particle_q.numpy(), change, touched),
+                               _interpolated(state.particle_qd.numpy(), change, touched),
+                               _forces_after(state.particle_f.numpy(), change, touched), np.zeros((0, 4)))
 
     def _fixed_after(self, change, touched: np.ndarray) -> np.ndarray:
         """(N_B,) int32: a vertex after ``change`` is fixed when all the vertices it is

@@ -9,16 +9,32 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
 
     name = "beam"                      # prim name in the USD file
     [mesh]
-    path = "meshes/organ.msh"          # any format meshio reads, relative to the scene file
-    # or: generator = "beam", cells = [4, 4, 20], size = [0.04, 0.04, 0.2], origin = [0, 0, 0]
-    order = 2                          # quadratic elements: a tetra10 file is used as is, linear
-                                       # elements get straight edge nodes (default 1: linear)
+    path = "meshes/organ.msh"          # any format meshio reads, relative to the scene file; a
+                                       # file with tetra/tetra10 cells is a solid, one with only
+                                       # triangle/triangle6 cells a thin shell (ShellMesh.load)
+    # or: generator = "beam", cells = [4, 4, 20], size = [0.04, 0.04, 0.2] (m), origin = [0, 0, 0] (m),
+    #     tets_per_hex = 5 (5 or 6)
+    order = 2                          # solids: quadratic elements: a tetra10 file is used as is,
+                                       # linear elements get straight edge nodes (default 1: linear);
+                                       # shells are always quadratic triangles: 2 or absent
+    # thin shells (6-node triangles, flat in the plane z = origin z, normal +z):
+    # generator = "rectangle_sheet", cells = [nx, ny] (default [8, 8]), size = [w, h] (m, default
+    #     [0.2, 0.2]), origin = [x, y, z] (m, the lowest corner)
+    # generator = "l_shape_sheet": a square of cells = [n, n] cells (n even, default [8, 8]) and
+    #     size = [s, s] (m) without its top-right quadrant; the re-entrant corner is at the centre
+    # generator = "precut_sheet": as rectangle_sheet (ny even) with a slit from the middle of the
+    #     left side along +x, notch_length (m, default w / 2) rounded to whole cells
+    # pattern = "alternate" or "right"     sheets: cell diagonals criss-cross or all lower left to
+    #                                      upper right (default "alternate")
+    thickness = 1e-3                   # shells only (m, default 1e-3)
     [material]      density (kg/m^3), youngs_modulus (Pa), poisson_ratio
     [damping]       rayleigh_mass (1/s), rayleigh_stiffness (s)
-    [constraints]   fixed_indices = [..], fixed_boxes = [[[x0,y0,z0],[x1,y1,z1]], ...]
+    [constraints]   fixed_indices = [..] (the mesh file's numbering), fixed_boxes = [[[x0,y0,z0],[x1,y1,z1]], ...]
     [loads]         gravity = [gx, gy, gz] (m/s^2)
     [[loads.force]] box = [[..],[..]], total = [fx, fy, fz] (N, spread evenly over the box's vertices)
-    [[attachments]] point = [x, y, z] or vertex = i; target = [x, y, z]; stiffness (N/m)
+    [[attachments]] point = [x, y, z] or vertex = i; target = [x, y, z]; stiffness (N/m). A point is
+                    held by the element containing it (a shell: the nearest triangle, point
+                    projected onto it)
     [solver]        dt (s), cg_iterations (<= 10000), cg_tolerance, rotation_iterations
     [simulation]    duration (s), fps (frames per second written)
     [output]        path, stress_colors (bool), stress_max (Pa: top of the colour scale; default:
@@ -31,6 +47,7 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
                     blade = [[[x,y,z],[x,y,z]], ...] (its two endpoints at each key frame, m;
                     linear in between). From f0 on, each frame cuts along the surface the
                     blade swept since the previous frame, in the current configuration.
+                    Solids only: a shell is not cut by a blade.
 """
 
 from __future__ import annotations
@@ -47,6 +64,7 @@ import numpy as np
 
 from .errors import SceneError, WcutError
 from .io import check_writable
+from .mesh import SHEET_PATTERNS
 
 try:
     import tomllib
@@ -112,9 +130,10 @@ MAX_SUBSTEPS = 10000
 
 # section -> key -> (checker, default); a default of None means "absent unless given"
 _SCHEMA = {
-    "mesh": {"path": (_string, None), "generator": (_string, None), "cells": (_int3, [4, 4, 20]),
-             "size": (_vec3, [0.04, 0.04, 0.2]), "origin": (_vec3, [0.0, 0.0, 0.0]),
-             "tets_per_hex": (_integer, 5), "order": (_integer, 1)},
+    # cells, size and order are checked by _parse_mesh: their rules depend on the generator
+    "mesh": {"path": (_string, None), "generator": (_string, None), "cells": (None, None), "size": (None, None),
+             "origin": (_vec3, [0.0, 0.0, 0.0]), "tets_per_hex": (_integer, 5), "order": (_integer, None),
+             "pattern": (_string, None), "notch_length": (_number, None), "thickness": (_number, None)},
     "material": {"density": (_number, 1000.0), "youngs_modulus": (_number, 1.0e5),
                  "poisson_ratio": (_number, 0.3)},
     "damping": {"rayleigh_mass": (_number, 0.0), "rayleigh_stiffness": (_number, 0.0)},
@@ -126,11 +145,22 @@ _SCHEMA = {
     "output": {"path": (_string, None), "stress_colors": (_boolean, True), "stress_max": (_number, None),
                "up_axis": (_string, "Z"), "subdivision": (_integer, 2)},
 }
+#: the generators of thin shells (wcut.mesh); a sheet's defaults are cells = [8, 8], size = [0.2, 0.2] m
+SHEET_GENERATORS = ("rectangle_sheet", "l_shape_sheet", "precut_sheet")
+GENERATORS = ("beam",) + SHEET_GENERATORS
+#: default thickness (m) of a shell
+DEFAULT_THICKNESS = 1.0e-3
+_SHEET_CELLS = [8, 8]
+_SHEET_SIZE = [0.2, 0.2]
+
 _CUT_SCHEMA = {"method": (_string, "paulus"), "epsilon": (_number, 0.1), "frames": (_list_of(_integer), None),
                "blade": (None, None)}
 _FORCE_SCHEMA = {"box": (_box, None), "total": (_vec3, None)}
-_ATTACHMENT_SCHEMA = {"point": (_vec3, None), "vertex": (_integer, None), "target": (_vec3, None),
-                  "stiffness": (_number, None)}
+_ATTACHMENT_SCHEMA = {"point": (_vec3, None), "vertex": (_integer, None), "box": (_box, None),
+                      "target": (_vec3, None), "stiffness": (_number, None), "velocity": (_vec3, [0.0, 0.0, 0.0])}
+_FRACTURE_SCHEMA = {"strength": (_number, None), "variant": (_string, "none"), "max_cracks_per_step": (_integer, 1),
+                    "smoothing": (_string, "max"), "direction_smoothing": (_string, "weighted"),
+                    "min_quality": (_number, None)}
 
 
 def _table(raw, schema, where):
@@ -165,6 +195,7 @@ class Scene:
     simulation: dict = field(default_factory=dict)
     output: dict = field(default_factory=dict)
     cut: dict | None = None
+    fracture: dict | None = None
 
     @property
     def frame_count(self) -> int:
@@ -190,20 +221,14 @@ def load_scene(path: str | os.PathLike) -> Scene:
 
 
 def _parse(raw: dict, path: Path) -> Scene:
-    top = set(_SCHEMA) | {"name", "attachments", "cut"}
+    top = set(_SCHEMA) | {"name", "attachments", "cut", "fracture"}
     unknown = sorted(set(raw) - top)
     if unknown:
         raise SceneError(f"{unknown[0]}: unknown key (expected one of: {', '.join(sorted(top))})")
     if "mesh" not in raw:
         raise SceneError("mesh: missing section (give mesh.path or mesh.generator)")
     sections = {name: _table(raw.get(name, {}), schema, name) for name, schema in _SCHEMA.items()}
-    mesh = sections["mesh"]
-    if (mesh["path"] is None) == (mesh["generator"] is None):
-        raise SceneError("mesh: give exactly one of mesh.path and mesh.generator")
-    if mesh["generator"] not in (None, "beam"):
-        raise SceneError(f"mesh.generator: unknown generator {mesh['generator']!r} (expected 'beam')")
-    if mesh["order"] not in (1, 2):
-        raise SceneError(f"mesh.order: expected 1 (linear) or 2 (quadratic), got {mesh['order']}")
+    mesh = _parse_mesh(sections["mesh"], raw["mesh"])
     if not 0 <= sections["output"]["subdivision"] <= 5:
         raise SceneError(f"output.subdivision: must be in 0..5, got {sections['output']['subdivision']}")
     forces = sections["loads"].pop("force")
@@ -219,10 +244,13 @@ def _parse(raw: dict, path: Path) -> Scene:
         raise SceneError("attachments: expected an array of tables ([[attachments]])")
     attachments = [_table(a, _ATTACHMENT_SCHEMA, f"attachments[{i}]") for i, a in enumerate(attachments)]
     for i, a in enumerate(attachments):
-        if (a["point"] is None) == (a["vertex"] is None):
-            raise SceneError(f"attachments[{i}]: give exactly one of point and vertex")
+        if sum(a[key] is not None for key in ("point", "vertex", "box")) != 1:
+            raise SceneError(f"attachments[{i}]: give exactly one of point, vertex and box")
+        if a["box"] is not None and a["target"] is not None:
+            raise SceneError(f"attachments[{i}].target: a box holds each vertex at its rest position (move it "
+                             f"with velocity)")
         for key in ("target", "stiffness"):
-            if a[key] is None:
+            if a[key] is None and not (key == "target" and a["box"] is not None):
                 raise SceneError(f"attachments[{i}].{key}: missing")
         if a["stiffness"] < 0:
             raise SceneError(f"attachments[{i}].stiffness: must be >= 0, got {a['stiffness']}")
@@ -257,9 +285,80 @@ def _parse(raw: dict, path: Path) -> Scene:
         name = re.sub(r"\W", "_", path.stem)
         name = name if re.match(r"[A-Za-z_]", name) else f"_{name}"
     cut = _parse_cut(raw["cut"]) if "cut" in raw else None
+    fracture = _parse_fracture(raw["fracture"]) if "fracture" in raw else None
     return Scene(path=path, name=name, mesh=mesh, material=sections["material"], damping=sections["damping"],
                  constraints=sections["constraints"], loads=sections["loads"], forces=forces, attachments=attachments,
-                 solver=solver, simulation=sim, output=out, cut=cut)
+                 solver=solver, simulation=sim, output=out, cut=cut, fracture=fracture)
+
+
+def _parse_mesh(mesh: dict, raw: dict) -> dict:
+    """The [mesh] table with the rules that depend on the generator checked and its defaults
+    filled in. ``order`` stays None for a file without mesh.order (1 for tetrahedra, 2 for a
+    shell: the file decides); ``thickness`` is None where the mesh is known to be a solid."""
+    if (mesh["path"] is None) == (mesh["generator"] is None):
+        raise SceneError("mesh: give exactly one of mesh.path and mesh.generator")
+    generator = mesh["generator"]
+    if generator is not None and generator not in GENERATORS:
+        raise SceneError(f"mesh.generator: unknown generator {generator!r} (expected one of "
+                         f"{', '.join(repr(g) for g in GENERATORS)})")
+    sheet = generator in SHEET_GENERATORS
+
+    def only(key: str, allowed: bool, where: str) -> None:
+        if key in raw and not allowed:
+            raise SceneError(f"mesh.{key}: only for {where}")
+
+    only("tets_per_hex", not sheet, "the beam generator and tetrahedral files")
+    only("pattern", sheet, f"the sheet generators ({', '.join(SHEET_GENERATORS)})")
+    only("notch_length", generator == "precut_sheet", "generator = 'precut_sheet'")
+    only("thickness", generator != "beam", "shells (sheet generators and triangle files), not the beam")
+    if mesh["order"] is not None and mesh["order"] not in (1, 2):
+        raise SceneError(f"mesh.order: expected 1 (linear) or 2 (quadratic), got {mesh['order']}")
+    if mesh["thickness"] is not None and mesh["thickness"] <= 0:
+        raise SceneError(f"mesh.thickness: must be positive, got {mesh['thickness']}")
+    if not sheet:  # the beam, or a file of either kind: the solid's rules, as they always were
+        mesh["cells"] = _int3(raw["cells"], "mesh.cells") if "cells" in raw else [4, 4, 20]
+        mesh["size"] = _vec3(raw["size"], "mesh.size") if "size" in raw else [0.04, 0.04, 0.2]
+        if generator == "beam" and mesh["order"] is None:
+            mesh["order"] = 1
+        return mesh
+    if mesh["order"] not in (None, 2):
+        raise SceneError(f"mesh.order: a shell is made of quadratic triangles: expected 2 or no mesh.order, "
+                         f"got {mesh['order']}")
+    mesh["order"] = 2
+    mesh["thickness"] = DEFAULT_THICKNESS if mesh["thickness"] is None else mesh["thickness"]
+    mesh["pattern"] = "alternate" if mesh["pattern"] is None else mesh["pattern"]
+    if mesh["pattern"] not in SHEET_PATTERNS:
+        raise SceneError(f"mesh.pattern: expected one of {', '.join(repr(p) for p in SHEET_PATTERNS)}, "
+                         f"got {mesh['pattern']!r}")
+    cells = raw.get("cells", list(_SHEET_CELLS))
+    if not isinstance(cells, list) or len(cells) != 2:
+        raise SceneError(f"mesh.cells: expected a list of two integers [nx, ny] for {generator}, got {cells!r}")
+    cells = [_integer(v, f"mesh.cells[{i}]") for i, v in enumerate(cells)]
+    size = raw.get("size", list(_SHEET_SIZE))
+    if not isinstance(size, list) or len(size) != 2:
+        raise SceneError(f"mesh.size: expected a list of two lengths [w, h] (m) for {generator}, got {size!r}")
+    size = [_number(v, f"mesh.size[{i}]") for i, v in enumerate(size)]
+    if min(cells) < 1:
+        raise SceneError(f"mesh.cells: expected at least one cell along x and y, got {cells}")
+    if min(size) <= 0:
+        raise SceneError(f"mesh.size: must be positive, got {size}")
+    if generator == "l_shape_sheet" and (cells[0] != cells[1] or cells[0] % 2):
+        raise SceneError(f"mesh.cells: the L-shape is a square of [n, n] cells without a quadrant: expected two "
+                         f"equal even integers, got {cells}")
+    if generator == "l_shape_sheet" and size[0] != size[1]:
+        raise SceneError(f"mesh.size: the L-shape is a square: expected two equal lengths [s, s] (m), got {size}")
+    if generator == "precut_sheet":
+        if cells[1] % 2:
+            raise SceneError(f"mesh.cells: precut_sheet needs an even ny (the slit is the grid line y = h/2), "
+                             f"got {cells}")
+        notch = size[0] / 2 if mesh["notch_length"] is None else mesh["notch_length"]
+        whole = math.floor(notch / (size[0] / cells[0]) + 0.5)  # as wcut.mesh.precut_sheet rounds it
+        if not (0 < notch < size[0] and 1 <= whole <= cells[0] - 1):
+            raise SceneError(f"mesh.notch_length: {notch:g} m rounds to {whole} cells of {size[0] / cells[0]:g} m; "
+                             f"the slit must be 1..{cells[0] - 1} cells long (inside the sheet)")
+        mesh["notch_length"] = notch
+    mesh["cells"], mesh["size"] = cells, size
+    return mesh
 
 
 def _parse_cut(raw) -> dict:
@@ -287,6 +386,28 @@ def _parse_cut(raw) -> dict:
     return cut
 
 
+def _parse_fracture(raw) -> dict:
+    from .fracture import VARIANTS
+
+    fracture = _table(raw, _FRACTURE_SCHEMA, "fracture")
+    if fracture["strength"] is None:
+        raise SceneError("fracture.strength: missing (the ultimate tensile strength, Pa)")
+    if fracture["strength"] <= 0:
+        raise SceneError(f"fracture.strength: must be positive, got {fracture['strength']}")
+    if fracture["variant"] not in VARIANTS:
+        raise SceneError(f"fracture.variant: unknown variant {fracture['variant']!r} (expected one of "
+                         f"{', '.join(VARIANTS)})")
+    if not 1 <= fracture["max_cracks_per_step"] <= MAX_ITERATIONS:
+        raise SceneError(f"fracture.max_cracks_per_step: must be in 1..{MAX_ITERATIONS}, got "
+                         f"{fracture['max_cracks_per_step']}")
+    for key in ("smoothing", "direction_smoothing"):
+        if fracture[key] not in ("max", "weighted"):
+            raise SceneError(f"fracture.{key}: expected 'max' or 'weighted', got {fracture[key]!r}")
+    if fracture["min_quality"] is not None and not 0.0 <= fracture["min_quality"] < 1.0:
+        raise SceneError(f"fracture.min_quality: must be in [0, 1), got {fracture['min_quality']}")
+    return fracture
+
+
 def blade_path(cut: dict) -> np.ndarray:
     """(F, 2, 3) blade endpoints (m) at every frame from the first key frame to the last."""
     keys = np.asarray(cut["frames"], dtype=np.float64)
@@ -296,30 +417,70 @@ def blade_path(cut: dict) -> np.ndarray:
 
 
 def build_mesh(scene: Scene):
-    """The scene's mesh: loaded (path relative to the scene file) or generated; a
+    """The scene's mesh: loaded (path relative to the scene file) or generated. A
+    :class:`~wcut.mesh.ShellMesh` for a sheet generator or a file of triangles without
+    tetrahedra; else a :class:`~wcut.mesh.TetMesh`, or a
     :class:`~wcut.quadratic.QuadraticTetMesh` when ``mesh.order = 2``."""
-    from .mesh import beam
+    from . import mesh as meshes
     from .quadratic import load_mesh, to_quadratic
 
     m = scene.mesh
     if m["path"] is not None:
-        return load_mesh(scene.path.parent / m["path"], m["order"])
-    mesh = beam(*m["cells"], size=m["size"], origin=m["origin"], tets_per_hex=m["tets_per_hex"])
+        path = scene.path.parent / m["path"]
+        if not _is_shell_file(path):
+            if m["thickness"] is not None:
+                raise SceneError(f"{scene.path.name}: mesh.thickness: only for shells, and {m['path']} holds "
+                                 f"tetrahedra")
+            return load_mesh(path, m["order"] or 1)
+        if m["order"] not in (None, 2):
+            raise SceneError(f"{scene.path.name}: mesh.order: {m['path']} holds triangles (a shell), which are "
+                             f"always quadratic: expected 2 or no mesh.order, got {m['order']}")
+        return meshes.ShellMesh.load(path)
+    common = {"origin": m["origin"], "pattern": m["pattern"]}
+    if m["generator"] == "rectangle_sheet":
+        return meshes.rectangle_sheet(*m["cells"], size=m["size"], **common)
+    if m["generator"] == "l_shape_sheet":
+        return meshes.l_shape_sheet(m["cells"][0] // 2, size=m["size"][0], **common)
+    if m["generator"] == "precut_sheet":
+        return meshes.precut_sheet(*m["cells"], size=m["size"], notch_length=m["notch_length"], **common)
+    mesh = meshes.beam(*m["cells"], size=m["size"], origin=m["origin"], tets_per_hex=m["tets_per_hex"])
     return to_quadratic(mesh) if m["order"] == 2 else mesh
+
+
+def _is_shell_file(path) -> bool:
+    """Whether a mesh file is a shell: triangles (``triangle`` or ``triangle6``) and no
+    tetrahedra. False when it cannot be read: the tetrahedral loader reports why."""
+    from .errors import MeshError
+    from .mesh import read_meshio
+
+    try:
+        kinds = {block.type for block in read_meshio(path).cells}
+    except MeshError:
+        return False
+    return not kinds & {"tetra", "tetra10"} and bool(kinds & {"triangle", "triangle6"})
 
 
 def build_model(scene: Scene, mesh=None, device=None):
     """Model, Control and external nodal forces (N, (N, 3) numpy) of a scene."""
+    model, control, forces, _ = _build(scene, mesh, device)
+    return model, control, forces
+
+
+def _build(scene: Scene, mesh=None, device=None):
+    """:func:`build_model` and the attachment targets' velocities (S, 3) in m/s."""
+    from .mesh import ShellMesh
     from .model import Attachments, Model
 
     where = scene.path.name
     mesh = mesh if mesh is not None else build_mesh(scene)
+    is_shell = isinstance(mesh, ShellMesh)
     c = scene.constraints
 
     def vertex(index: int, key: str) -> int:  # indices in a scene are the mesh file's numbering
         found = mesh.vertex_from_source(index)
         if found < 0:
-            raise SceneError(f"{where}: {key}: vertex {index} is not a vertex of the tetrahedral mesh")
+            kind = "shell" if is_shell else "tetrahedral"
+            raise SceneError(f"{where}: {key}: vertex {index} is not a vertex of the {kind} mesh")
         return found
 
     fixed = [np.array([vertex(i, "constraints.fixed_indices") for i in c["fixed_indices"]], dtype=np.int64)]
@@ -327,25 +488,37 @@ def build_model(scene: Scene, mesh=None, device=None):
         fixed.append(mesh.vertices_in_box(*box))
         if len(fixed[-1]) == 0:
             raise SceneError(f"{where}: constraints.fixed_boxes[{i}] contains no vertex")
-    attached = Attachments.empty()
+    attached, targets, velocities = Attachments.empty(), [], []
     for i, a in enumerate(scene.attachments):
-        if a["vertex"] is not None:
-            index = vertex(a["vertex"], f"attachments[{i}].vertex")
-            attached = attached.concatenate(Attachments.at_vertices([index], a["stiffness"]))
+        if a["box"] is not None:
+            ids = mesh.vertices_in_box(*a["box"])
+            if len(ids) == 0:
+                raise SceneError(f"{where}: attachments[{i}].box contains no vertex")
+            held = Attachments.at_vertices(ids, a["stiffness"])
+            targets.append(mesh.vertices[ids])
+        elif a["vertex"] is not None:
+            held = Attachments.at_vertices([vertex(a["vertex"], f"attachments[{i}].vertex")], a["stiffness"])
+            targets.append([a["target"]])
         else:
-            attached = attached.concatenate(Attachments.at_points(mesh, [a["point"]], a["stiffness"]))
+            held = Attachments.at_points(mesh, [a["point"]], a["stiffness"])
+            targets.append([a["target"]])
+        attached = attached.concatenate(held)
+        velocities.append(np.broadcast_to(np.asarray(a["velocity"], float), (len(held), 3)))
+    thickness = scene.mesh["thickness"]
+    shell = {"thickness": DEFAULT_THICKNESS if thickness is None else thickness} if is_shell else {}
     model = Model(mesh, **scene.material, **scene.damping, gravity=scene.loads["gravity"],
-                  fixed=np.unique(np.concatenate(fixed)), attachments=attached, device=device)
+                  fixed=np.unique(np.concatenate(fixed)), attachments=attached, device=device, **shell)
     control = model.control()
     if len(scene.attachments):
-        control.attachment_target.assign(np.array([a["target"] for a in scene.attachments], dtype=np.float32))
+        control.attachment_target.assign(np.concatenate(targets).astype(np.float32))
     forces = np.zeros((mesh.vertex_count, 3))
     for i, f in enumerate(scene.forces):
         ids = mesh.vertices_in_box(*f["box"])
         if len(ids) == 0:
             raise SceneError(f"{where}: loads.force[{i}].box contains no vertex")
         forces[ids] += np.asarray(f["total"]) / len(ids)
-    return model, control, forces
+    velocity = np.concatenate(velocities) if velocities else np.zeros((0, 3))
+    return model, control, forces, velocity
 
 
 @dataclass
@@ -356,9 +529,10 @@ class RunResult:
     steps: int
     mean_step_ms: float
     nodes: int
-    elements: int
+    elements: int  #: tetrahedra of a solid, triangles of a shell
     output: Path | None
     cut_events: int = 0
+    crack_events: int = 0  #: crack advances (:class:`wcut.fracture.CrackEvent`)
 
 
 def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: int | None = None,
@@ -387,7 +561,12 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     fps = scene.simulation["fps"]
     writer = UsdAnimationWriter(output, fps=fps, up_axis=scene.output["up_axis"])
     check_writable(output)  # fail before the simulation, not after it
-    model, control, forces = build_model(scene, device=device)
+    model, control, forces, target_velocity = _build(scene, device=device)
+    if scene.cut and model.tri_count:
+        raise SceneError(f"{scene.path.name}: cut: a blade cuts solids only; this scene's mesh is a shell")
+    if scene.fracture and not model.tri_count:
+        raise SceneError(f"{scene.path.name}: fracture: fracture is simulated on shells only; this scene's mesh "
+                         f"is a solid")
     settings = scene.solver
     solver = SolverCorotational(model, cg_iterations=settings["cg_iterations"],
                                 cg_tolerance=settings["cg_tolerance"],
@@ -410,7 +589,22 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
             stresses.append(np.maximum(surface.points(vertex_von_mises(model, state)), 0.0))
 
     blade = _Blade(scene.cut, model.mesh) if scene.cut else None
+    fracture = _fracture(scene.fracture, model.mesh) if scene.fracture else None
+    targets0 = control.attachment_target.numpy().astype(np.float64)
+    moving = bool(np.any(target_velocity))
     cut_events = 0
+
+    def rebuilt(mesh, change):
+        """The model, states, control and solver after a topological change."""
+        nonlocal model, state
+        targets = control.attachment_target.numpy()
+        model, state = model.rebuild(mesh, change, state)
+        after, new_control = model.state(), model.control()
+        after.particle_f.assign(state.particle_f)
+        new_control.attachment_target.assign(targets)
+        return after, new_control, SolverCorotational(model, cg_iterations=settings["cg_iterations"],
+                                                      cg_tolerance=settings["cg_tolerance"],
+                                                      rotation_iterations=settings["rotation_iterations"])
 
     show = sys.stderr.isatty() if progress is None else progress
     bar = _progress(frames, show, scene.name)
@@ -418,10 +612,17 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     record()
     try:
         for _ in range(frames):
-            start = time.perf_counter()
-            for _ in range(substeps):
+            start, cracked = time.perf_counter(), False
+            for substep in range(substeps):
+                if moving:  # grabbed points move at constant velocity
+                    elapsed = (frame * substeps + substep + 1) * dt
+                    control.attachment_target.assign((targets0 + elapsed * target_velocity).astype(np.float32))
                 solver.step(state, next_state, control, dt)
                 state, next_state = next_state, state
+                change = fracture.step(model, state) if fracture else None
+                if change is not None:  # a crack advances after every step, at most a bounded number of edges
+                    cracked = True
+                    next_state, control, solver = rebuilt(fracture.mesh, change)
             wp.synchronize_device(model.device)
             step_seconds += time.perf_counter() - start
             solver.check_finite()
@@ -429,14 +630,8 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
             change = blade.cut(frame, state) if blade else None
             if change is not None:
                 cut_events += 1
-                targets = control.attachment_target.numpy()
-                model, state = model.rebuild(blade.mesh(), change, state)
-                next_state, control = model.state(), model.control()
-                next_state.particle_f.assign(state.particle_f)
-                control.attachment_target.assign(targets)
-                solver = SolverCorotational(model, cg_iterations=settings["cg_iterations"],
-                                            cg_tolerance=settings["cg_tolerance"],
-                                            rotation_iterations=settings["rotation_iterations"])
+                next_state, control, solver = rebuilt(blade.mesh(), change)
+            if change is not None or cracked:
                 surface = render_surface(model.mesh, subdivision)
             record()
             bar.update(1)
@@ -448,7 +643,17 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
             colors = stress_colors(stresses[frame], vmin=0.0, vmax=max(stress_max, 1e-30)) if colored else None
             writer.write_frame(scene.name, frame, frame_points, triangles[frame], colors)
     return RunResult(frames=frames, steps=frames * substeps, mean_step_ms=1e3 * step_seconds / (frames * substeps),
-                     nodes=model.particle_count, elements=model.tet_count, output=output, cut_events=cut_events)
+                     nodes=model.particle_count, elements=model.tri_count or model.tet_count, output=output,
+                     cut_events=cut_events, crack_events=len(fracture.events) if fracture else 0)
+
+
+def _fracture(settings: dict, mesh):
+    """The :class:`wcut.fracture.ShellFracture` of a scene's [fracture] table."""
+    from .fracture import ShellFracture
+
+    return ShellFracture(mesh, settings["strength"], variant=settings["variant"],
+                         max_cracks_per_step=settings["max_cracks_per_step"], smoothing=settings["smoothing"],
+                         direction_smoothing=settings["direction_smoothing"], min_quality=settings["min_quality"])
 
 
 def render_surface(mesh, subdivision: int = 2):

@@ -1,5 +1,5 @@
-"""Stress recovery for output: corotated element stress and nodal von Mises values of solids,
-Gauss-point stress of shells."""
+"""Stress recovery for output: corotated element stress of solids, Gauss-point stress of
+shells, and nodal von Mises values of both."""
 
 from __future__ import annotations
 
@@ -31,16 +31,28 @@ def element_stress(model: Model, state: State) -> tuple[np.ndarray, np.ndarray]:
     return stress.numpy(), von_mises.numpy()
 
 
+def von_mises(stress: np.ndarray) -> np.ndarray:
+    """Von Mises stress (Pa) of Cauchy stress tensors (..., 3, 3): ``sqrt(3/2 s:s)`` with ``s``
+    the deviator (a plane stress in world axes included: the invariant needs no local frame)."""
+    stress = np.asarray(stress, dtype=np.float64)
+    deviator = stress - np.trace(stress, axis1=-2, axis2=-1)[..., None, None] / 3.0 * np.eye(3)
+    return np.sqrt(1.5 * np.einsum("...ij,...ij->...", deviator, deviator))
+
+
 def vertex_von_mises(model: Model, state: State) -> np.ndarray:
-    """Von Mises stress (Pa) per vertex: the volume-weighted mean over its elements."""
-    _, vm = element_stress(model, state)
-    volume = model.tet_rest_volume.numpy()
-    tets = model.mesh.tets
+    """Von Mises stress (Pa) per vertex: the mean over its elements weighted by their rest
+    volume (solids) or area (shells: each triangle's value the mean over its Gauss points)."""
+    if model.tri_count:
+        vm = von_mises(shell_gauss_stress(model, state)).mean(axis=1)  # equal Gauss weights
+        size, elements = model.tri_rest_area.numpy(), model.mesh.triangles
+    else:
+        _, vm = element_stress(model, state)
+        size, elements = model.tet_rest_volume.numpy(), model.mesh.tets
     total = np.zeros(model.particle_count)
     weight = np.zeros(model.particle_count)
-    nodes = tets.shape[1]
-    np.add.at(total, tets.ravel(), np.repeat(vm * volume, nodes))
-    np.add.at(weight, tets.ravel(), np.repeat(volume, nodes))
+    nodes = elements.shape[1]
+    np.add.at(total, elements.ravel(), np.repeat(vm * size, nodes))
+    np.add.at(weight, elements.ravel(), np.repeat(size, nodes))
     return total / weight
 
 

@@ -5,6 +5,8 @@
   (edge removal), edge bisection, vertex move (snapping), unsew, vertex duplication.
 - :class:`TopologyChange`: how the mesh after a change derives from the mesh before.
 - ``check``: the invariants, verified from scratch.
+- ``shell``: the operators of quadratic shells that fracture uses (open edges, move nodes,
+  split a triangle into four) and their check (thesis 6.2).
 """
 
 from .change import TopologyChange

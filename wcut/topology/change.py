@@ -112,3 +112,57 @@ class TopologyChange:
             removed_elements=removed, added_elements=added,
         )
 
+
+
+def compose(first: TopologyChange, second: TopologyChange) -> TopologyChange:
+    """The change from ``first``'s mesh before to ``second``'s mesh after, for two changes made
+    one after the other (``second`` starts from ``first``'s mesh after), in the numbering
+    conventions of the shell operators: an element keeps its index unless replaced, new
+    elements and vertices are appended. Vertex weights are multiplied out and merged per
+    source, so interpolating through the composite equals interpolating twice."""
+    if second.vertex_count_before != first.vertex_count_after or \
+            second.element_count_before != first.element_count_after:
+        raise ValueError("compose: the second change does not start from the first one's mesh")
+    s1, w1, s2, w2 = first.vertex_sources, first.vertex_weights, second.vertex_sources, second.vertex_weights
+    count = second.vertex_count_after
+    itself = (s2[:, 0] == np.arange(count)) & (w2[:, 0] == 1.0) & (w2[:, 1:] == 0.0).all(axis=1)
+    rows = {}
+    for v in np.flatnonzero(~itself).tolist():
+        merged: dict[int, float] = {}
+        for s, w in zip(s2[v].tolist(), w2[v].tolist()):
+            for s0, w0 in zip(s1[s].tolist(), w1[s].tolist()):
+                if w != 0.0 and w0 != 0.0:
+                    merged[s0] = merged.get(s0, 0.0) + w * w0
+        rows[v] = merged or {int(s1[s2[v, 0], 0]): 0.0}
+    width = max([s1.shape[1]] + [len(r) for r in rows.values()])
+    kept = np.flatnonzero(itself)  # rows of the first change, as they are
+    sources = np.empty((count, width), dtype=np.int64)
+    weights = np.zeros((count, width))
+    sources[kept] = np.pad(s1[kept], ((0, 0), (0, width - s1.shape[1])), mode="edge")
+    weights[kept, :s1.shape[1]] = w1[kept]
+    for v, r in rows.items():
+        sources[v] = list(r) + [next(iter(r))] * (width - len(r))
+        weights[v] = list(r.values()) + [0.0] * (width - len(r))
+    parent = np.where(second.vertex_parent_element >= 0,
+                      first.element_parent[np.maximum(second.vertex_parent_element, 0)], -1)
+    # a vertex second did not create (kept, or a copy with weight 1 on one vertex) keeps the
+    # parent first gave that vertex
+    copied = (parent < 0) & (w2[:, 0] == 1.0) & (w2[:, 1:] == 0.0).all(axis=1)
+    parent[copied] = first.vertex_parent_element[s2[copied, 0]]
+    element_parent = first.element_parent[second.element_parent]
+    first_added = np.zeros(first.element_count_after, dtype=bool)
+    first_added[first.added_elements] = True
+    removed = np.union1d(first.removed_elements,
+                         first.element_parent[second.removed_elements[~first_added[second.removed_elements]]])
+    added = np.union1d(second.added_elements,
+                       first.added_elements[first.added_elements < second.element_count_after])
+    moved = np.union1d(first.moved_vertices, second.moved_vertices[second.moved_vertices < first.vertex_count_before])
+    return TopologyChange(
+        vertex_count_before=first.vertex_count_before, vertex_count_after=second.vertex_count_after,
+        element_count_before=first.element_count_before, element_count_after=second.element_count_after,
+        vertex_sources=sources, vertex_weights=weights, vertex_parent_element=parent,
+        new_vertices=np.arange(first.vertex_count_before, second.vertex_count_after, dtype=np.int64),
+        moved_vertices=moved.astype(np.int64), element_parent=element_parent,
+        element_rest_changed=second.element_rest_changed | first.element_rest_changed[second.element_parent],
+        removed_elements=removed.astype(np.int64), added_elements=added.astype(np.int64),
+    )
