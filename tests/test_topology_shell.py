@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from wcut import shell
 from wcut.mesh import SHEET_PATTERNS, ShellMesh, precut_sheet, rectangle_sheet
-from wcut.topology import TopologyError
+from wcut.topology import TopologyError, connected_components
 from wcut.topology.change import compose
 from wcut.topology.shell import (check_shell, edge_key, edge_users, locate, move_nodes, open_edges, shape_weights,
                                  split_triangle, triangle_qualities, vertex_fan_counts)
@@ -44,20 +44,8 @@ def cylinder(mesh: ShellMesh, radius: float) -> ShellMesh:
 
 
 def components(mesh: ShellMesh) -> int:
-    """Connected components of the triangles, two triangles being connected when they share a
-    corner edge (edge-adjacency, not a shared node)."""
-    parent = list(range(mesh.triangle_count))
-
-    def root(t):
-        while parent[t] != t:
-            parent[t] = parent[parent[t]]
-            t = parent[t]
-        return t
-
-    for users in edge_users(mesh.triangles).values():
-        for (t, _), (u, _) in zip(users, users[1:]):
-            parent[root(t)] = root(u)
-    return len({root(t) for t in range(mesh.triangle_count)})
+    """Pieces of a sheet: triangles sharing a corner edge (not just a node) are connected."""
+    return int(connected_components(mesh).max()) + 1
 
 
 def carry(values: np.ndarray, change) -> np.ndarray:

@@ -80,20 +80,26 @@ def check_closed(mesh: TetMesh) -> None:
         raise TopologyError(f"the boundary is not closed at edge {bad}")
 
 
-def connected_components(mesh: TetMesh) -> np.ndarray:
-    """(M,) label of the connected component of each element (elements sharing a face are
-    connected), labels 0..C-1 in order of first element."""
+def connected_components(mesh) -> np.ndarray:
+    """(M,) label of the connected component of each element, labels 0..C-1 in order of first
+    element: tetrahedra (a TetMesh) sharing a face, or shell triangles (a ShellMesh) sharing a
+    corner edge, are connected."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components as scipy_components
 
-    faces = np.sort(mesh.tets[:, TET_FACES].reshape(-1, 3), axis=1)
+    from .. import shell
+    from ..mesh import ShellMesh
+
+    elements, sides = (mesh.triangles, shell.EDGES) if isinstance(mesh, ShellMesh) else (mesh.tets, TET_FACES)
+    count = len(elements)
+    faces = np.sort(elements[:, sides].reshape(-1, sides.shape[1]), axis=1)
     _, inverse = np.unique(faces, axis=0, return_inverse=True)
     inverse = inverse.ravel()
-    owner = np.repeat(np.arange(mesh.tet_count), 4)
+    owner = np.repeat(np.arange(count), len(sides))
     order = np.argsort(inverse, kind="stable")
     same = inverse[order[1:]] == inverse[order[:-1]]
     a, b = owner[order[:-1][same]], owner[order[1:][same]]
-    graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(mesh.tet_count,) * 2)
+    graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(count,) * 2)
     _, labels = scipy_components(graph, directed=False)
     _, first = np.unique(labels, return_index=True)  # relabel in order of first element
     remap = np.empty(labels.max() + 1, dtype=np.int64)
