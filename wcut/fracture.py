@@ -512,9 +512,7 @@ class ShellFracture:
                 continue
             mesh, event_change = result
             stale |= advance.touched
-            x = _carry(x, event_change)
-            fixed = _carry(fixed[:, None].astype(float), event_change)[:, 0] == 1.0
-            self._pinned = _carry(self._pinned[:, None].astype(float), event_change)[:, 0] == 1.0
+            x, fixed, self._pinned = advance.x, advance.fixed, advance.pinned  # carried through the event
             change = event_change if change is None else compose(change, event_change)
             self.events.append(CrackEvent(step=step, node=v, sigma_plus=float(sigma_plus[i]),
                                           direction=advance.direction, segments=advance.segments(mesh),
