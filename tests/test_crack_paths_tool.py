@@ -4,22 +4,18 @@ the precut sheet, end to end on a tiny case, and its path measure and clamps."""
 from __future__ import annotations
 
 import csv
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-TOOL = Path(__file__).resolve().parent.parent / "tools" / "crack_paths.py"
+from conftest import load_tool
+
 CELLS = 8
 
 
 @pytest.fixture(scope="module")
 def tool():
-    spec = importlib.util.spec_from_file_location("crack_paths", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("crack_paths")
 
 
 @pytest.fixture(scope="module")

@@ -4,21 +4,16 @@ orders of P1 and P2, P2 more accurate at equal degrees of freedom, and the tool 
 from __future__ import annotations
 
 import csv
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-TOOL = Path(__file__).resolve().parent.parent / "tools" / "p2_accuracy.py"
+from conftest import load_tool
 
 
 @pytest.fixture(scope="module")
 def tool():
-    spec = importlib.util.spec_from_file_location("p2_accuracy", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("p2_accuracy")
 
 
 def energy_order(tool, order: int, levels) -> float:

@@ -4,19 +4,15 @@ what its figures must show."""
 from __future__ import annotations
 
 import csv
-import importlib.util
-from pathlib import Path
 
 import pytest
 
-TOOL = Path(__file__).resolve().parent.parent / "tools" / "p2_cut_nodes.py"
+from conftest import load_tool
 
 
 @pytest.fixture(scope="module")
 def rows(tmp_path_factory):
-    spec = importlib.util.spec_from_file_location("p2_cut_nodes", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_tool("p2_cut_nodes")
     out = tmp_path_factory.mktemp("p2nodes") / "p2_cut_nodes"
     assert module.main(["-o", str(out), "--quick"]) == 0
     assert out.with_suffix(".png").stat().st_size > 10_000
