@@ -7,7 +7,7 @@ Model (rest data), State (positions, velocities) and Control (external inputs).
 
 __version__ = "0.1.0"
 
-from .errors import ExportError, FractureError, MeshError, ModelError, SceneError, SimulationError, WcutError
+from .errors import CaptureError, ExportError, FractureError, MeshError, ModelError, SceneError, SimulationError, WcutError
 from .mesh import ShellMesh, TetMesh, beam, l_shape_sheet, precut_sheet, rectangle_sheet
 
 __all__ = [
@@ -19,6 +19,7 @@ __all__ = [
     "ExportError",
     "SimulationError",
     "FractureError",
+    "CaptureError",
     "TetMesh",
     "ShellMesh",
     "beam",

@@ -50,6 +50,37 @@ def _cmd_cut(args) -> int:
     return 0
 
 
+def _cmd_synth(args) -> int:
+    from .ar.synth import synthesize
+
+    result = synthesize(args.scene, args.output, frames=args.frames, progress=None if not args.quiet else False)
+    print(f"frames: {result.frames}")
+    print(f"truth elements: {result.truth_elements}")
+    print(f"model elements: {result.model_elements}")
+    print(f"cut frames: {', '.join(map(str, result.cut_frames)) or 'none'}")
+    print(f"wrote {result.directory}")
+    return 0
+
+
+def _cmd_ar(args) -> int:
+    from .ar.pipeline import run_ar
+
+    result = run_ar(args.capture, args.output, overlay=args.overlay, metrics=args.metrics, cut=not args.no_cut,
+                    frames=args.frames, progress=None if not args.quiet else False)
+    m = result.metrics()
+    print(f"frames: {m['frames']}")
+    print(f"features: {m['features']} ({m['features_lost']} lost)")
+    print(f"cuts detected: {m['cuts_detected']}" + (" (cut handling off)" if args.no_cut else ""))
+    if m["dice_final"] is not None:
+        print(f"dice final: {m['dice_final']:.4f}")
+    print(f"detection: {m['detection_ms_mean']:.3f} ms/frame")
+    print(f"loop: {m['fps_mean']:.1f} frames/s")
+    for path in (args.output, args.overlay, args.metrics):
+        if path:
+            print(f"wrote {path}")
+    return 0
+
+
 def _epsilon(text: str) -> float:
     try:
         value = float(text)
@@ -109,6 +140,28 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--quick", action="store_true", help="fewer repetitions (a smoke run)")
     bench.add_argument("--quiet", action="store_true", help="no progress bar")
     bench.set_defaults(func=_cmd_bench)
+
+    synth = sub.add_parser("synth", help="write a synthetic capture directory with ground truth",
+                           description="Simulate a synthetic scene (a scene with [camera] and [synth]), render "
+                                       "it through the camera and write a capture directory with truth/.")
+    synth.add_argument("scene", metavar="SCENE.toml")
+    synth.add_argument("-o", "--output", metavar="DIR", required=True, help="the capture directory (replaced)")
+    synth.add_argument("--frames", type=_positive_int, metavar="N", help="frames after the first (default: all)")
+    synth.add_argument("--quiet", action="store_true", help="no progress bar")
+    synth.set_defaults(func=_cmd_synth)
+
+    ar = sub.add_parser("ar", help="register a model to a video and detect cuts (thesis chapter 7)",
+                        description="Run the augmented-reality pipeline on a capture directory: track features, "
+                                    "pull the model with springs, detect cuts and tears and cut the model; "
+                                    "write the USD animation of the model and its internal structures.")
+    ar.add_argument("capture", metavar="DIR")
+    ar.add_argument("-o", "--output", metavar="OUT.usd|.usda|.usdc", required=True, help="the USD animation")
+    ar.add_argument("--overlay", metavar="OUT.mp4|.avi", help="the frames with the model drawn over them")
+    ar.add_argument("--metrics", metavar="M.json", help="per-run metrics (Dice, Hausdorff, detection, fps)")
+    ar.add_argument("--no-cut", action="store_true", help="the same registration without topological changes")
+    ar.add_argument("--frames", type=_positive_int, metavar="N", help="use only the first N frames")
+    ar.add_argument("--quiet", action="store_true", help="no progress bar")
+    ar.set_defaults(func=_cmd_ar)
     return parser
 
 

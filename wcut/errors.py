@@ -33,3 +33,9 @@ class ModelError(WcutError):
 class FractureError(WcutError):
     """Input of fracture (stress recovery, criterion, crack growth) is invalid: shapes, NaN,
     indices or strength."""
+
+
+class CaptureError(WcutError):
+    """A capture directory (video or frames, camera.json, mask.png, model, internal
+    structures, params.toml) is missing a file or holds an inconsistent one; the message
+    names the file."""

@@ -535,6 +535,90 @@ class RunResult:
     crack_events: int = 0  #: crack advances (:class:`wcut.fracture.CrackEvent`)
 
 
+class Simulation:
+    """A scene being simulated, frame by frame: the model, its state, the blade and the
+    fracture driver, and the topological changes they make.
+
+    Each frame advances ``1 / fps`` seconds in ``ceil(1 / (fps * dt))`` equal sub-steps.
+    Attachments with a ``velocity`` move their targets at that constant velocity.
+
+    Attributes:
+        model, state, control, solver: the current model and its state (rebuilt after every
+            topological change).
+        frame: frames simulated so far.
+        step_seconds: wall time spent in solver steps and crack growth (s).
+        cut_events: frames in which the blade changed the mesh.
+        changes: the ``(mesh, change)`` of every topological change of the last frame, in order.
+    """
+
+    def __init__(self, scene: Scene, device=None):
+        self.scene = scene
+        self.model, self.control, forces, self._target_velocity = _build(scene, device=device)
+        if scene.cut and self.model.tri_count:
+            raise SceneError(f"{scene.path.name}: cut: a blade cuts solids only; this scene's mesh is a shell")
+        if scene.fracture and not self.model.tri_count:
+            raise SceneError(f"{scene.path.name}: fracture: fracture is simulated on shells only; this scene's "
+                             f"mesh is a solid")
+        self._settings = scene.solver
+        self.solver = self._solver()
+        fps = scene.simulation["fps"]
+        self.substeps = max(1, math.ceil(1.0 / (fps * self._settings["dt"]) - 1e-9))
+        self.dt = 1.0 / (fps * self.substeps)
+        self.state, self._next = self.model.state(), self.model.state()
+        for each in (self.state, self._next):  # constant loads: the solver reads them and never clears them
+            each.particle_f.assign(forces.astype(np.float32))
+        self.blade = _Blade(scene.cut, self.model.mesh) if scene.cut else None
+        self.fracture = _fracture(scene.fracture, self.model.mesh) if scene.fracture else None
+        self._targets0 = self.control.attachment_target.numpy().astype(np.float64)
+        self._moving = bool(np.any(self._target_velocity))
+        self.frame, self.step_seconds, self.cut_events = 0, 0.0, 0
+        self.changes: list = []
+
+    def _solver(self):
+        from .solver import SolverCorotational
+
+        s = self._settings
+        return SolverCorotational(self.model, cg_iterations=s["cg_iterations"], cg_tolerance=s["cg_tolerance"],
+                                  rotation_iterations=s["rotation_iterations"])
+
+    def rebuild(self, mesh, change) -> None:
+        """Carry the model, state and control over ``change`` (which led to ``mesh``)."""
+        targets = self.control.attachment_target.numpy()
+        self.changes.append((mesh, change))
+        self.model, self.state = self.model.rebuild(mesh, change, self.state)
+        self._next, self.control = self.model.state(), self.model.control()
+        self._next.particle_f.assign(self.state.particle_f)
+        self.control.attachment_target.assign(targets)
+        self.solver = self._solver()
+
+    def advance(self) -> bool:
+        """Simulate one frame; True when the mesh changed (a cut or a crack)."""
+        import warp as wp
+
+        start, changed = time.perf_counter(), False
+        self.changes = []
+        for substep in range(self.substeps):
+            if self._moving:  # grabbed points move at constant velocity
+                elapsed = (self.frame * self.substeps + substep + 1) * self.dt
+                self.control.attachment_target.assign(
+                    (self._targets0 + elapsed * self._target_velocity).astype(np.float32))
+            self.solver.step(self.state, self._next, self.control, self.dt)
+            self.state, self._next = self._next, self.state
+            change = self.fracture.step(self.model, self.state) if self.fracture else None
+            if change is not None:  # a crack advances after every step, at most a bounded number of edges
+                changed = True
+                self.rebuild(self.fracture.mesh, change)
+        wp.synchronize_device(self.model.device)
+        self.step_seconds += time.perf_counter() - start
+        self.solver.check_finite()
+        self.frame += 1
+        change = self.blade.cut(self.frame, self.state) if self.blade else None
+        if change is not None:
+            self.cut_events += 1
+            self.rebuild(self.blade.mesh(), change)
+        return changed or change is not None
+
+
 def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: int | None = None,
               progress: bool | None = None, device=None) -> RunResult:
     """Simulate a scene and write its USD animation (atomically).
@@ -548,9 +632,6 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
 
     Each frame advances ``1 / fps`` seconds in ``ceil(1 / (fps * dt))`` equal sub-steps.
     """
-    import warp as wp
-
-    from .solver import SolverCorotational
     from .stress import vertex_von_mises
     from .usd import UsdAnimationWriter, stress_colors
 
@@ -558,81 +639,28 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
     if frames < 1:
         raise SceneError(f"frames must be at least 1, got {frames}")
     output = Path(output or scene.output["path"] or f"{scene.name}.usdc")
-    fps = scene.simulation["fps"]
-    writer = UsdAnimationWriter(output, fps=fps, up_axis=scene.output["up_axis"])
+    writer = UsdAnimationWriter(output, fps=scene.simulation["fps"], up_axis=scene.output["up_axis"])
     check_writable(output)  # fail before the simulation, not after it
-    model, control, forces, target_velocity = _build(scene, device=device)
-    if scene.cut and model.tri_count:
-        raise SceneError(f"{scene.path.name}: cut: a blade cuts solids only; this scene's mesh is a shell")
-    if scene.fracture and not model.tri_count:
-        raise SceneError(f"{scene.path.name}: fracture: fracture is simulated on shells only; this scene's mesh "
-                         f"is a solid")
-    settings = scene.solver
-    solver = SolverCorotational(model, cg_iterations=settings["cg_iterations"],
-                                cg_tolerance=settings["cg_tolerance"],
-                                rotation_iterations=settings["rotation_iterations"])
-    substeps = max(1, math.ceil(1.0 / (fps * settings["dt"]) - 1e-9))
-    dt = 1.0 / (fps * substeps)
-    state, next_state = model.state(), model.state()
-    for each in (state, next_state):  # constant loads: the solver reads them and never clears them
-        each.particle_f.assign(forces.astype(np.float32))
+    sim = Simulation(scene, device=device)
     subdivision = scene.output["subdivision"]
-    surface = render_surface(model.mesh, subdivision)
+    surface = render_surface(sim.model.mesh, subdivision)
     colored = scene.output["stress_colors"]
     # Frames are kept until the end so that every frame is coloured on one stress scale.
     points, triangles, stresses = [], [], []
 
     def record():
-        points.append(surface.points(state.particle_q.numpy()))
+        points.append(surface.points(sim.state.particle_q.numpy()))
         triangles.append(surface.triangles)
         if colored:  # quadratic interpolation may undershoot 0 between nodes
-            stresses.append(np.maximum(surface.points(vertex_von_mises(model, state)), 0.0))
-
-    blade = _Blade(scene.cut, model.mesh) if scene.cut else None
-    fracture = _fracture(scene.fracture, model.mesh) if scene.fracture else None
-    targets0 = control.attachment_target.numpy().astype(np.float64)
-    moving = bool(np.any(target_velocity))
-    cut_events = 0
-
-    def rebuilt(mesh, change):
-        """The model, states, control and solver after a topological change."""
-        nonlocal model, state
-        targets = control.attachment_target.numpy()
-        model, state = model.rebuild(mesh, change, state)
-        after, new_control = model.state(), model.control()
-        after.particle_f.assign(state.particle_f)
-        new_control.attachment_target.assign(targets)
-        return after, new_control, SolverCorotational(model, cg_iterations=settings["cg_iterations"],
-                                                      cg_tolerance=settings["cg_tolerance"],
-                                                      rotation_iterations=settings["rotation_iterations"])
+            stresses.append(np.maximum(surface.points(vertex_von_mises(sim.model, sim.state)), 0.0))
 
     show = sys.stderr.isatty() if progress is None else progress
     bar = _progress(frames, show, scene.name)
-    step_seconds, frame = 0.0, 0
     record()
     try:
         for _ in range(frames):
-            start, cracked = time.perf_counter(), False
-            for substep in range(substeps):
-                if moving:  # grabbed points move at constant velocity
-                    elapsed = (frame * substeps + substep + 1) * dt
-                    control.attachment_target.assign((targets0 + elapsed * target_velocity).astype(np.float32))
-                solver.step(state, next_state, control, dt)
-                state, next_state = next_state, state
-                change = fracture.step(model, state) if fracture else None
-                if change is not None:  # a crack advances after every step, at most a bounded number of edges
-                    cracked = True
-                    next_state, control, solver = rebuilt(fracture.mesh, change)
-            wp.synchronize_device(model.device)
-            step_seconds += time.perf_counter() - start
-            solver.check_finite()
-            frame += 1
-            change = blade.cut(frame, state) if blade else None
-            if change is not None:
-                cut_events += 1
-                next_state, control, solver = rebuilt(blade.mesh(), change)
-            if change is not None or cracked:
-                surface = render_surface(model.mesh, subdivision)
+            if sim.advance():
+                surface = render_surface(sim.model.mesh, subdivision)
             record()
             bar.update(1)
     finally:
@@ -642,9 +670,11 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
         for frame, frame_points in enumerate(points):
             colors = stress_colors(stresses[frame], vmin=0.0, vmax=max(stress_max, 1e-30)) if colored else None
             writer.write_frame(scene.name, frame, frame_points, triangles[frame], colors)
-    return RunResult(frames=frames, steps=frames * substeps, mean_step_ms=1e3 * step_seconds / (frames * substeps),
-                     nodes=model.particle_count, elements=model.tri_count or model.tet_count, output=output,
-                     cut_events=cut_events, crack_events=len(fracture.events) if fracture else 0)
+    return RunResult(frames=frames, steps=frames * sim.substeps,
+                     mean_step_ms=1e3 * sim.step_seconds / (frames * sim.substeps),
+                     nodes=sim.model.particle_count, elements=sim.model.tri_count or sim.model.tet_count,
+                     output=output, cut_events=sim.cut_events,
+                     crack_events=len(sim.fracture.events) if sim.fracture else 0)
 
 
 def _fracture(settings: dict, mesh):
@@ -698,11 +728,14 @@ class _Blade:
         # a sample every half edge: the mapped blade follows the body's bending
         self.sample_count = int(np.clip(np.ceil(2.0 * length / self.cutter.mean_edge_length), 2, 64)) + 1
         self._mapped = None  # the blade of the last frame, in the rest configuration
+        #: the surface (rest configuration) the blade swept in the last call of :meth:`cut`, or None
+        self.last_increment = None
 
     def cut(self, frame: int, state):
         """The TopologyChange of this frame's cut, or None when nothing changed."""
         from .cut.surface import strip
 
+        self.last_increment = None
         k = frame - self.first
         if not 0 <= k < self.sweep.frame_count:
             return None
@@ -719,6 +752,7 @@ class _Blade:
         increment = strip(before, self._mapped)
         if increment is None:
             return None
+        self.last_increment = increment
         if self.quadratic is None:
             change = self.cutter.cut(increment, progressive=True, rest=True).change
         else:
@@ -762,4 +796,4 @@ def _progress(total: int, show: bool, label: str):
     return tqdm(total=total, desc=label, unit="frame", file=sys.stderr, leave=False)
 
 
-__all__ = ["Scene", "RunResult", "load_scene", "build_mesh", "build_model", "run_scene", "WcutError"]
+__all__ = ["Scene", "RunResult", "Simulation", "load_scene", "build_mesh", "build_model", "run_scene", "WcutError"]

@@ -1,0 +1,261 @@
+"""Detection of cuts and tears from the motion of features (thesis 7.5.2 and 7.5.3).
+
+Neighbouring features (initial distance below ``radius``, the graph ``C_F^0``) move alike
+while the object deforms smoothly. Across a cut the model, still whole, cannot follow its
+targets: the spring vectors ``d_l = p_l^t - p_l^1`` of the two sides point apart (eq. 7.9)
+and the targets separate (eq. 7.10). A pair whose measure ``mu_lm = mu_lm,1 mu_lm,2``
+(eq. 7.11) exceeds ``tau`` times the mean is an outlier; once ``min_outliers`` exist, a cut
+point is put at their barycentre weighted by the measure, pairs through the sphere of radius
+``cut_point_radius`` around it leave the graph, and the point extends a cut polygon at its
+nearest end, with a look-ahead point one radius further (figure 7.7). When a polygon gets its
+second point, its first end gets a look-ahead point too, so the cut reaches the object's
+boundary at both ends (the thesis extends only the newest end; its first point, put where
+the outliers are, lies inside the object, and a cut starting there could not open). A cut
+point farther than ``join_radius`` from every polygon end starts a new polygon: a second
+cut elsewhere, or a stray detection, is not joined to the first by a long straight cut.
+
+Positions are kept in the rest configuration: a feature's initial virtual point
+``p_l^0`` is a material point of the model, so the cut points (barycentres of ``p^0``) and
+the polygon are material too and stay put however the object moves. The thesis keeps its
+cut lines in the current configuration and notes that they drift as the object deforms
+(7.5.3, on [79]); material points do not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+from scipy.spatial import cKDTree
+
+from ..errors import WcutError
+
+#: the two variants of eq. 7.10: ``target`` is delta^1 / delta^0 ([82], the image alone),
+#: ``current`` is delta^t / delta^0 ([78], smoothed by the model)
+MEASURES = ("target", "current")
+#: pairs one thread of the measure kernel handles on the CPU
+PAIRS_PER_THREAD = 64
+
+
+@dataclass(frozen=True)
+class DetectionParams:
+    """Settings of :class:`CutDetector`.
+
+    Attributes:
+        radius: r_{P_F} (m): features closer than this at rest are neighbours.
+        cut_point_radius: r_{p_c} (m): pairs through a sphere this large around a new cut
+            point are removed, and the look-ahead point is this far beyond it.
+        tau: outlier threshold: ``mu_lm > tau * mean(mu)`` (the thesis uses 7 and 8).
+        min_outliers: n: outliers needed before a cut point is put.
+        measure: ``"target"`` or ``"current"`` (:data:`MEASURES`).
+        cluster_radius: outliers farther than this (m, rest) from the strongest one are left
+            for later cut points, so that two separate openings do not average to a point
+            between them; default ``2 * cut_point_radius``.
+        join_radius: a cut point within this distance (m, rest) of a polygon's end extends that
+            polygon, otherwise it starts a new one; default ``3 * cut_point_radius``.
+        min_measure: an outlier's measure must also exceed this (m). While the object barely
+            moves, every ``mu`` is tracking noise and ``tau`` times their mean is noise too;
+            the thesis has no such floor, and without it its rule fires on the first frames.
+    """
+
+    radius: float
+    cut_point_radius: float
+    tau: float = 7.0
+    min_outliers: int = 3
+    measure: str = "target"
+    cluster_radius: float | None = None
+    join_radius: float | None = None
+    min_measure: float = 0.0
+
+    def __post_init__(self):
+        for name in ("radius", "cut_point_radius", "tau"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise WcutError(f"detection.{name}: expected a positive number, got {value!r}")
+        if not (isinstance(self.min_outliers, int) and self.min_outliers >= 1):
+            raise WcutError(f"detection.min_outliers: expected an integer >= 1, got {self.min_outliers!r}")
+        if self.measure not in MEASURES:
+            raise WcutError(f"detection.measure: expected one of {', '.join(MEASURES)}, got {self.measure!r}")
+        for name in ("cluster_radius", "join_radius"):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                raise WcutError(f"detection.{name}: expected a positive number, got {value!r}")
+
+
+@dataclass(frozen=True)
+class CutPoint:
+    """A cut point put by :meth:`CutDetector.update`.
+
+    Attributes:
+        point: the cut point (3,) (m, rest configuration).
+        polygon: index of the polygon it belongs to (in :attr:`CutDetector.polygons`).
+        previous: the polygon point it extends (3,), or None for a polygon's first point.
+        look_ahead: the point one ``cut_point_radius`` beyond it along ``point - previous``
+            (3,), or None for a polygon's first point.
+        back: for a polygon's second point, the look-ahead beyond the first point
+            (``previous - cut_point_radius * direction``), else None.
+        at_start: True if it was put before the first point of the polygon.
+        outliers: number of outlier pairs it was computed from.
+    """
+
+    point: np.ndarray
+    polygon: int
+    previous: np.ndarray | None
+    look_ahead: np.ndarray | None
+    back: np.ndarray | None
+    at_start: bool
+    outliers: int
+
+
+class CutDetector:
+    """The neighbour graph of the features and the cut polygon growing in it.
+
+    The measure of every pair is one launch of ``wcut.kernels.cut_detection.pair_measure``
+    (recorded once, its inputs copied into arrays allocated once): the detection's cost per
+    frame is that launch and a threshold over the pairs.
+
+    Args:
+        rest_features: (F, 3) initial virtual features ``p^0`` (m), material points.
+        params: :class:`DetectionParams`.
+        device: Warp device of the measure's arrays.
+
+    Attributes:
+        pairs: (P, 2) neighbour pairs (l < m), ``C_F^0``.
+        alive: (P,) pairs still in the graph ``C_F^t``.
+        polygons: list of (n, 3) cut polygons (m, rest), each in order.
+        last_mean: mean measure of the last update (0 before any).
+        last_outliers: outlier pairs of the last update.
+    """
+
+    def __init__(self, rest_features, params: DetectionParams, device=None):
+        p0 = np.asarray(rest_features, dtype=np.float64).reshape(-1, 3)
+        if not np.isfinite(p0).all():
+            raise WcutError("cut detection: non-finite rest features")
+        self.params = params
+        self.rest_features = p0
+        self.pairs = cKDTree(p0).query_pairs(params.radius, output_type="ndarray").astype(np.int64)
+        self.pairs = self.pairs[np.lexsort((self.pairs[:, 1], self.pairs[:, 0]))]
+        self._l, self._m = self.pairs[:, 0].copy(), self.pairs[:, 1].copy()
+        self.rest_length = np.linalg.norm(p0[self._l] - p0[self._m], axis=1)
+        keep = self.rest_length > 0  # coincident features would divide by zero in eq. 7.10
+        self.alive = keep.copy()
+        self._midpoints = 0.5 * (p0[self._l] + p0[self._m])
+        self._device = wp.get_device(device)
+        self._setup_kernel()
+        self.polygons: list[np.ndarray] = []
+        self.last_mean = 0.0
+        self.last_outliers = 0
+
+    @property
+    def pair_count(self) -> int:
+        """Pairs still in the graph."""
+        return int(self.alive.sum())
+
+    def _setup_kernel(self) -> None:
+        from ..kernels import cut_detection
+
+        d, P, F = self._device, len(self.pairs), len(self.rest_features)
+        self._pairs_wp = wp.array(self.pairs.astype(np.int32), dtype=wp.vec2i, device=d)
+        self._length_wp = wp.array(np.where(self.rest_length > 0, self.rest_length, 1.0), dtype=float, device=d)
+        self._alive_wp = wp.array(self.alive.astype(np.int32), dtype=wp.int32, device=d)
+        self._active_wp = wp.zeros(F, dtype=wp.int32, device=d)
+        self._current_wp = wp.zeros(F, dtype=wp.vec3, device=d)
+        self._target_wp = wp.zeros(F, dtype=wp.vec3, device=d)
+        self._mu_wp = wp.zeros(P, dtype=float, device=d)
+        self._sum_wp = wp.zeros(2, dtype=float, device=d)
+        chunk = PAIRS_PER_THREAD if d.is_cpu else 1
+        self._launch = wp.launch(cut_detection.pair_measure, -(-P // chunk), device=d, record_cmd=True,
+                                 inputs=[self._pairs_wp, self._length_wp, self._alive_wp, self._active_wp,
+                                         self._current_wp, self._target_wp, int(self.params.measure == "target"),
+                                         chunk],
+                                 outputs=[self._mu_wp, self._sum_wp])
+        # CPU arrays are shared with numpy: inputs are copied in and results read without a call
+        self._views = {id(a): a.numpy() for a in (self._alive_wp, self._active_wp, self._current_wp,
+                                                  self._target_wp, self._mu_wp, self._sum_wp)} if d.is_cpu else {}
+
+    def measure(self, current, target, active) -> tuple[np.ndarray, int, float]:
+        """``(mu, live, mean)``: the measure of eq. 7.11 for every pair (P,), -1 where it is not
+        defined (out of the graph, or a feature not active); the number of live pairs and their
+        mean measure. ``current`` (F, 3) are the features on the model ``p^t``, ``target``
+        (F, 3) their targets ``p^1`` (m), ``active`` (F,) bool."""
+        for array, value in ((self._current_wp, current), (self._target_wp, target), (self._active_wp, active)):
+            self._copy_in(array, value)
+        self._sum_wp.zero_()
+        if len(self.pairs):
+            self._launch.launch()
+        total, count = self._read(self._sum_wp)
+        return self._read(self._mu_wp), int(count), float(total / count) if count else 0.0
+
+    def _copy_in(self, array: wp.array, value) -> None:
+        """Copy a numpy array into a Warp array: in place through the shared view on the CPU
+        (``assign`` costs some 30 us there, more than the measure itself), else by ``assign``."""
+        view = self._views.get(id(array))
+        if view is not None:
+            np.copyto(view, np.asarray(value).reshape(view.shape), casting="unsafe")
+        else:
+            array.assign(np.asarray(value, dtype=np.float32 if array.dtype == wp.vec3 else np.int32))
+
+    def _read(self, array: wp.array) -> np.ndarray:
+        view = self._views.get(id(array))
+        return view if view is not None else array.numpy()
+
+    def update(self, current, target, active) -> CutPoint | None:
+        """One detection step: the new cut point, or None.
+
+        Args:
+            current: (F, 3) features on the model ``p^t`` (m).
+            target: (F, 3) their targets ``p^1`` (m).
+            active: (F,) bool, features still tracked and pulling.
+        """
+        mu, count, self.last_mean = self.measure(current, target, active)
+        self.last_outliers = 0
+        if count == 0:
+            return None
+        outlier = mu > max(self.params.tau * self.last_mean, self.params.min_measure)
+        self.last_outliers = int(np.count_nonzero(outlier))
+        if self.last_outliers < self.params.min_outliers:
+            return None
+        index = np.flatnonzero(outlier)
+        weight, mid = mu[index], self._midpoints[index]
+        strongest = mid[np.argmax(weight)]
+        reach = self.params.cluster_radius or 2.0 * self.params.cut_point_radius
+        near = np.linalg.norm(mid - strongest, axis=1) <= reach
+        if near.sum() < self.params.min_outliers:
+            return None
+        point = (weight[near, None] * mid[near]).sum(axis=0) / weight[near].sum()
+        self._remove_pairs_near(point)
+        return self._extend(point, int(near.sum()))
+
+    def _remove_pairs_near(self, point: np.ndarray) -> None:
+        """Remove the pairs whose segment (rest) passes within ``cut_point_radius`` of ``point``."""
+        a, b = self.rest_features[self._l], self.rest_features[self._m]
+        ab = b - a
+        s = np.clip(np.einsum("pi,pi->p", point - a, ab) / np.maximum(np.einsum("pi,pi->p", ab, ab), 1e-300), 0, 1)
+        gap = np.linalg.norm(a + s[:, None] * ab - point, axis=1)
+        self.alive &= gap >= self.params.cut_point_radius
+        self._copy_in(self._alive_wp, self.alive)
+
+    def _extend(self, point: np.ndarray, outliers: int) -> CutPoint:
+        """Put ``point`` at the nearest polygon end within ``join_radius`` (figure 7.7, middle)
+        with its look-ahead, or start a new polygon with it."""
+        join = self.params.join_radius or 3.0 * self.params.cut_point_radius
+        best, index, at_start = np.inf, -1, False
+        for k, polygon in enumerate(self.polygons):
+            for start, end in ((False, polygon[-1]), (True, polygon[0])):
+                gap = float(np.linalg.norm(point - end))
+                if gap < best and gap <= join and not (start and len(polygon) == 1):
+                    best, index, at_start = gap, k, start
+        if index < 0:
+            self.polygons.append(point[None].copy())
+            return CutPoint(point, len(self.polygons) - 1, None, None, None, False, outliers)
+        polygon = self.polygons[index]
+        previous = polygon[0] if at_start else polygon[-1]
+        self.polygons[index] = np.vstack([point, polygon] if at_start else [polygon, point])
+        step = point - previous
+        length = float(np.linalg.norm(step))
+        if length == 0.0:
+            return CutPoint(point, index, previous.copy(), None, None, at_start, outliers)
+        r = self.params.cut_point_radius * step / length
+        back = previous - r if len(polygon) == 1 else None
+        return CutPoint(point, index, previous.copy(), point + r, back, at_start, outliers)
