@@ -21,7 +21,8 @@ TINY_CUTS = (("tiny_cut", (6, 4, 5), (0.06, 0.04, 0.05)), ("tiny_cut2", (10, 4, 
 def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     path = tmp_path / "bench.json"
     result = run_benchmarks(path, quick=True, progress=False, scenes=(("tiny", (2, 2, 4), (0.02, 0.02, 0.04)),),
-                            cut_scenes=TINY_CUTS, p2_scenes=(("tiny_p2", (2, 2, 4), (0.02, 0.02, 0.04)),))
+                            cut_scenes=TINY_CUTS, p2_scenes=(("tiny_p2", (2, 2, 4), (0.02, 0.02, 0.04)),),
+                            ar_frames=6)
     written = json.loads(path.read_text())
     assert written == json.loads(json.dumps(result))
     (record,) = written["scenes"]
@@ -32,7 +33,10 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     assert abs(record["speedup_vs_reference"] - record["reference_step_ms"] / record["step_ms"]) < 0.05 * \
         record["speedup_vs_reference"] + 0.01
     out = capsys.readouterr().out
-    assert "tiny" in out and "tiny_cut2" in out and "bielser" in out and "tiny_p2" in out
+    assert "tiny" in out and "tiny_cut2" in out and "bielser" in out and "tiny_p2" in out and "cut detection" in out
+    detection, loop = written["ar_detection"], written["ar_loop"]
+    assert detection["features"] == 500 and 5000 < detection["pairs"] < 9000 and detection["update_ms"] > 0
+    assert loop["frames"] == 7 and loop["features"] > 300 and loop["fps_mean"] > 0
 
     # quadratic elements: same corners, plus one node per edge
     (p2,) = written["quadratic"]
@@ -76,8 +80,9 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
 
 def test_benchmark_without_cut_scenes_reports_no_cut_results(tmp_path):
     result = run_benchmarks(tmp_path / "bench.json", quick=True, progress=False, scenes=(), cut_scenes=(),
-                            p2_scenes=())
+                            p2_scenes=(), ar_frames=0)
     assert result["scenes"] == [] and result["cut_events"] == [] and result["quadratic"] == []
+    assert "ar_loop" not in result and "ar_detection" not in result
     assert "cut_event_size_ratio" not in result and "cut_methods" not in result
     assert json.loads((tmp_path / "bench.json").read_text()) == result
 

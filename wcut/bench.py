@@ -33,6 +33,44 @@ DT = 0.01
 CUT_SCENES = (("cut_20k", (200, 4, 5), (2.0, 0.04, 0.05)), ("cut_100k", (1000, 4, 5), (10.0, 0.04, 0.05)))
 #: Quadratic-element beams: name, hexahedra along x, y, z, size (m); 5 tetrahedra per cell.
 P2_SCENES = (("p2_beam_10k", (10, 10, 20), (0.1, 0.1, 0.2)),)
+#: the augmented-reality loop: a synthetic capture of this scene (thesis 7.7.1, 600 elements)
+AR_SCENE = Path(__file__).resolve().parents[1] / "scenes" / "ar" / "band_cut_side.toml"
+
+
+def bench_detection(feature_count: int = 500, pair_count: int = 6800, repeats: int = 200) -> dict:
+    """Cut detection at the thesis's scale (the V-example: 531 features, 6795 pairs): the time
+    of one :meth:`wcut.ar.detection.CutDetector.update` on a frame without a cut (ms)."""
+    from .ar.detection import CutDetector, DetectionParams
+
+    rng = np.random.default_rng(0)
+    side = 0.1
+    p0 = np.column_stack([rng.uniform(0, side, (feature_count, 2)), np.zeros(feature_count)])
+    # a radius giving about pair_count pairs: n^2/2 * (pi r^2 / side^2) = pairs, less the border
+    radius = side * np.sqrt(2.0 * pair_count / (np.pi * feature_count ** 2)) * 1.1
+    detector = CutDetector(p0, DetectionParams(radius=radius, cut_point_radius=radius, tau=10.0, min_measure=1e-3))
+    current = p0 * [1.3, 1.0, 1.0]
+    target = current + rng.normal(0.0, 1e-4, p0.shape)
+    active = np.ones(feature_count, bool)
+    ms = 1e3 * _median_seconds(lambda: detector.update(current, target, active), repeats, warmup=5)
+    return {"features": feature_count, "pairs": len(detector.pairs), "update_ms": round(ms, 4)}
+
+
+def bench_ar_loop(frames: int, scene=AR_SCENE) -> dict:
+    """The whole augmented-reality loop (tracking, lifting, solve, detection, cuts) on a
+    synthetic capture of ``scene`` (``frames`` frames after the first): frames per second."""
+    import tempfile
+
+    from .ar.pipeline import run_ar
+    from .ar.synth import synthesize
+
+    with tempfile.TemporaryDirectory(prefix="wcut-bench-ar-") as tmp:
+        synthesize(scene, Path(tmp) / "capture", frames=frames, progress=False)
+        result = run_ar(Path(tmp) / "capture", Path(tmp) / "out.usdc", progress=False)
+    m = result.metrics()
+    return {"scene": Path(scene).stem, "frames": m["frames"], "elements": result.elements_final,
+            "features": m["features"], "pairs": m["pairs_initial"], "fps_mean": round(m["fps_mean"], 1),
+            "frame_ms_mean": round(m["frame_ms_mean"], 2), "detection_ms_mean": round(m["detection_ms_mean"], 4),
+            "cuts_detected": m["cuts_detected"], "dice_final": round(m["dice_final"], 4)}
 #: Where the plane crosses its cell, as a fraction of the cell (not through a node layer).
 CUT_OFFSET = 0.37
 
@@ -261,12 +299,14 @@ def bench_cut_methods(cells, size, epsilons=(0.0, 0.1)) -> list[dict]:
 
 
 def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True, scenes=SCENES,
-                   cut_scenes=CUT_SCENES, p2_scenes=P2_SCENES) -> dict:
+                   cut_scenes=CUT_SCENES, p2_scenes=P2_SCENES, ar_frames: int | None = None) -> dict:
     """Run every benchmark scene, print a table and optionally write JSON (atomically).
 
     ``forces_ns_per_element`` is the once-per-step element kernel (rotation, forces, right-hand
     side, preconditioner); ``cg_fused_ms`` the 20 iterations of our loop and
     ``cg_warp_optim_ms`` the same 20 iterations through ``warp.optim.linear.cg``.
+    ``ar_frames``: frames of the augmented-reality loop benchmark (default 90, 20 with
+    ``quick``; 0 leaves it out, as does a checkout without ``scenes/ar``).
     """
     if json_path is not None:
         check_writable(json_path)  # fail now, not after a minute of benchmarks
@@ -287,6 +327,12 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
         quadratic.append(bench_quadratic(name, cells, size, repeats=5 if quick else 20))
     result = {"device": str(wp.get_device()), "warp": wp.config.version, "scenes": records, "cut_events": cut_events,
               "quadratic": quadratic}
+    ar_frames = (20 if quick else 90) if ar_frames is None else ar_frames
+    if ar_frames and AR_SCENE.exists():
+        if progress and sys.stderr.isatty():
+            print("augmented reality ...", file=sys.stderr)
+        result["ar_detection"] = bench_detection(repeats=50 if quick else 200)
+        result["ar_loop"] = bench_ar_loop(ar_frames)
     if cut_scenes:
         result["cut_event_size_ratio"] = round(cut_events[-1]["event_ms"] / cut_events[0]["event_ms"], 2)
         result["cut_methods"] = bench_cut_methods(*cut_scenes[0][1:])
@@ -305,6 +351,12 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
                                 ("steps_per_second", "steps/s"), ("forces_ns_per_element", "forces ns/el"),
                                 ("matvec_ns_per_element", "matvec ns/el"),
                                 ("p1_same_corners_step_ms", "P1 same corners ms")])
+    if "ar_loop" in result:
+        d = result["ar_detection"]
+        print(f"cut detection: {d['update_ms']} ms per frame ({d['features']} features, {d['pairs']} pairs)")
+        _print_rows([result["ar_loop"]], [("scene", "ar loop"), ("frames", "frames"), ("elements", "tets"),
+                                          ("features", "features"), ("fps_mean", "frames/s"),
+                                          ("detection_ms_mean", "detection ms"), ("dice_final", "dice")])
     if json_path is not None:
         with atomic_path(json_path) as tmp:
             Path(tmp).write_text(json.dumps(result, indent=2) + "\n")
