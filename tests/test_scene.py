@@ -812,3 +812,53 @@ def test_fracture_of_a_solid_is_refused(tmp_path, tiny_scene):
                       "direction_smoothing": "weighted", "min_quality": None}
     with pytest.raises(SceneError, match="fracture: fracture is simulated on shells only"):
         run_scene(scene, tmp_path / "x.usda", progress=False)
+
+
+def test_keyframed_attachments_move_their_targets_and_hold_after_the_last(tmp_path, write_scene):
+    from wcut.scene import Simulation, load_scene
+
+    scene = load_scene(write_scene(tmp_path, TINY_WITH_KEYS))
+    sim = Simulation(scene)
+    start = sim.control.attachment_target.numpy().copy()
+    seen = []
+    for _ in range(6):  # 30 fps, frames end at 1/30 .. 6/30 s
+        sim.advance()
+        seen.append(sim.control.attachment_target.numpy() - start)
+    # keys: 0 s -> 0, 0.1 s -> +2 cm in z, 0.2 s -> back to +1 cm; held after
+    np.testing.assert_allclose([o[:, 2].mean() for o in seen], [0.02 / 3, 0.04 / 3, 0.02, 0.05 / 3, 0.04 / 3, 0.01],
+                               atol=1e-6)
+    np.testing.assert_allclose(np.concatenate(seen)[:, :2], 0.0, atol=1e-7)
+
+
+@pytest.mark.parametrize("keys, message", [("[[0.0, 0, 0, 0]]", "at least two rows"),
+                                           ("[[0.1, 0, 0, 0], [0.1, 0, 0, 1]]", "increase"),
+                                           ("[[0.0, 0, 0], [0.1, 0, 0, 1]]", r"keyframes\[0\]")])
+def test_bad_keyframes_name_the_key(tmp_path, write_scene, keys, message):
+    from wcut.scene import load_scene
+
+    with pytest.raises(wcut.SceneError, match=message):
+        load_scene(write_scene(tmp_path, TINY_WITH_KEYS.replace(
+            "keyframes = [[0.0, 0, 0, 0], [0.1, 0, 0, 0.02], [0.2, 0, 0, 0.01]]", f"keyframes = {keys}")))
+
+
+TINY_WITH_KEYS = """
+[mesh]
+generator = "beam"
+cells = [4, 2, 2]
+size = [0.2, 0.05, 0.05]
+
+[constraints]
+fixed_boxes = [[[-0.001, -1.0, -1.0], [0.001, 1.0, 1.0]]]
+
+[[attachments]]
+box = [[0.199, -1.0, -1.0], [0.201, 1.0, 1.0]]
+stiffness = 100.0
+keyframes = [[0.0, 0, 0, 0], [0.1, 0, 0, 0.02], [0.2, 0, 0, 0.01]]
+
+[solver]
+dt = 0.0333334
+
+[simulation]
+duration = 0.2
+fps = 30
+"""

@@ -34,7 +34,10 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
     [[loads.force]] box = [[..],[..]], total = [fx, fy, fz] (N, spread evenly over the box's vertices)
     [[attachments]] point = [x, y, z] or vertex = i; target = [x, y, z]; stiffness (N/m). A point is
                     held by the element containing it (a shell: the nearest triangle, point
-                    projected onto it)
+                    projected onto it). box = [[..],[..]] holds every vertex in it at its rest
+                    position. The targets move with velocity = [vx, vy, vz] (m/s) or along
+                    keyframes = [[t, dx, dy, dz], ...] (s, m: offsets from the start, linear in
+                    between, held after the last)
     [solver]        dt (s), cg_iterations (<= 10000), cg_tolerance, rotation_iterations
     [simulation]    duration (s), fps (frames per second written)
     [output]        path, stress_colors (bool), stress_max (Pa: top of the colour scale; default:
@@ -157,7 +160,8 @@ _CUT_SCHEMA = {"method": (_string, "paulus"), "epsilon": (_number, 0.1), "frames
                "blade": (None, None)}
 _FORCE_SCHEMA = {"box": (_box, None), "total": (_vec3, None)}
 _ATTACHMENT_SCHEMA = {"point": (_vec3, None), "vertex": (_integer, None), "box": (_box, None),
-                      "target": (_vec3, None), "stiffness": (_number, None), "velocity": (_vec3, [0.0, 0.0, 0.0])}
+                      "target": (_vec3, None), "stiffness": (_number, None), "velocity": (_vec3, [0.0, 0.0, 0.0]),
+                      "keyframes": (None, None)}
 _FRACTURE_SCHEMA = {"strength": (_number, None), "variant": (_string, "none"), "max_cracks_per_step": (_integer, 1),
                     "smoothing": (_string, "max"), "direction_smoothing": (_string, "weighted"),
                     "min_quality": (_number, None)}
@@ -254,6 +258,10 @@ def _parse(raw: dict, path: Path) -> Scene:
                 raise SceneError(f"attachments[{i}].{key}: missing")
         if a["stiffness"] < 0:
             raise SceneError(f"attachments[{i}].stiffness: must be >= 0, got {a['stiffness']}")
+        if a["keyframes"] is not None:
+            a["keyframes"] = _keyframes(a["keyframes"], f"attachments[{i}].keyframes")
+            if any(a["velocity"]):
+                raise SceneError(f"attachments[{i}].keyframes: give keyframes or velocity, not both")
     solver, sim, out = sections["solver"], sections["simulation"], sections["output"]
     for key, value in (("solver.dt", solver["dt"]), ("simulation.duration", sim["duration"]),
                        ("simulation.fps", sim["fps"]), ("material.density", sections["material"]["density"]),
@@ -289,6 +297,21 @@ def _parse(raw: dict, path: Path) -> Scene:
     return Scene(path=path, name=name, mesh=mesh, material=sections["material"], damping=sections["damping"],
                  constraints=sections["constraints"], loads=sections["loads"], forces=forces, attachments=attachments,
                  solver=solver, simulation=sim, output=out, cut=cut, fracture=fracture)
+
+
+def _keyframes(value, key) -> np.ndarray:
+    """(K, 4) rows ``[t, dx, dy, dz]``: times (s, increasing from >= 0) and target offsets (m)."""
+    if not isinstance(value, list) or len(value) < 2:
+        raise SceneError(f"{key}: expected at least two rows [t, dx, dy, dz] (s, m)")
+    rows = []
+    for j, row in enumerate(value):
+        if not isinstance(row, list) or len(row) != 4:
+            raise SceneError(f"{key}[{j}]: expected [t, dx, dy, dz], got {row!r}")
+        rows.append([_number(v, f"{key}[{j}][{c}]") for c, v in enumerate(row)])
+    rows = np.asarray(rows)
+    if rows[0, 0] < 0 or np.any(np.diff(rows[:, 0]) <= 0):
+        raise SceneError(f"{key}: times must increase from >= 0 s, got {rows[:, 0].tolist()}")
+    return rows
 
 
 def _parse_mesh(mesh: dict, raw: dict) -> dict:
@@ -467,7 +490,7 @@ def build_model(scene: Scene, mesh=None, device=None):
 
 
 def _build(scene: Scene, mesh=None, device=None):
-    """:func:`build_model` and the attachment targets' velocities (S, 3) in m/s."""
+    """:func:`build_model` and the attachment targets' :class:`TargetMotion`."""
     from .mesh import ShellMesh
     from .model import Attachments, Model
 
@@ -488,7 +511,7 @@ def _build(scene: Scene, mesh=None, device=None):
         fixed.append(mesh.vertices_in_box(*box))
         if len(fixed[-1]) == 0:
             raise SceneError(f"{where}: constraints.fixed_boxes[{i}] contains no vertex")
-    attached, targets, velocities = Attachments.empty(), [], []
+    attached, targets, velocities, tracks = Attachments.empty(), [], [], []
     for i, a in enumerate(scene.attachments):
         if a["box"] is not None:
             ids = mesh.vertices_in_box(*a["box"])
@@ -504,6 +527,8 @@ def _build(scene: Scene, mesh=None, device=None):
             targets.append([a["target"]])
         attached = attached.concatenate(held)
         velocities.append(np.broadcast_to(np.asarray(a["velocity"], float), (len(held), 3)))
+        if a["keyframes"] is not None:
+            tracks.append((sum(len(v) for v in velocities[:-1]), len(held), a["keyframes"]))
     thickness = scene.mesh["thickness"]
     shell = {"thickness": DEFAULT_THICKNESS if thickness is None else thickness} if is_shell else {}
     model = Model(mesh, **scene.material, **scene.damping, gravity=scene.loads["gravity"],
@@ -518,7 +543,31 @@ def _build(scene: Scene, mesh=None, device=None):
             raise SceneError(f"{where}: loads.force[{i}].box contains no vertex")
         forces[ids] += np.asarray(f["total"]) / len(ids)
     velocity = np.concatenate(velocities) if velocities else np.zeros((0, 3))
-    return model, control, forces, velocity
+    return model, control, forces, TargetMotion(velocity, tracks)
+
+
+@dataclass
+class TargetMotion:
+    """How the attachment targets move: ``offset(t)`` (S, 3) (m) from their start at time t (s).
+
+    Attributes:
+        velocity: (S, 3) constant velocities (m/s).
+        tracks: ``(first, count, keyframes)``: attachments ``first .. first + count - 1``
+            follow the (K, 4) ``[t, dx, dy, dz]`` rows, linear in between, held after the last.
+    """
+
+    velocity: np.ndarray
+    tracks: list
+
+    @property
+    def moving(self) -> bool:
+        return bool(np.any(self.velocity)) or bool(self.tracks)
+
+    def offset(self, time: float) -> np.ndarray:
+        out = time * self.velocity
+        for first, count, keys in self.tracks:
+            out[first:first + count] += [np.interp(time, keys[:, 0], keys[:, c]) for c in (1, 2, 3)]
+        return out
 
 
 @dataclass
@@ -540,7 +589,7 @@ class Simulation:
     fracture driver, and the topological changes they make.
 
     Each frame advances ``1 / fps`` seconds in ``ceil(1 / (fps * dt))`` equal sub-steps.
-    Attachments with a ``velocity`` move their targets at that constant velocity.
+    Attachments with a ``velocity`` or ``keyframes`` move their targets (:class:`TargetMotion`).
 
     Attributes:
         model, state, control, solver: the current model and its state (rebuilt after every
@@ -553,7 +602,7 @@ class Simulation:
 
     def __init__(self, scene: Scene, device=None):
         self.scene = scene
-        self.model, self.control, forces, self._target_velocity = _build(scene, device=device)
+        self.model, self.control, forces, self._motion = _build(scene, device=device)
         if scene.cut and self.model.tri_count:
             raise SceneError(f"{scene.path.name}: cut: a blade cuts solids only; this scene's mesh is a shell")
         if scene.fracture and not self.model.tri_count:
@@ -570,7 +619,7 @@ class Simulation:
         self.blade = _Blade(scene.cut, self.model.mesh) if scene.cut else None
         self.fracture = _fracture(scene.fracture, self.model.mesh) if scene.fracture else None
         self._targets0 = self.control.attachment_target.numpy().astype(np.float64)
-        self._moving = bool(np.any(self._target_velocity))
+        self._moving = self._motion.moving
         self.frame, self.step_seconds, self.cut_events = 0, 0.0, 0
         self.changes: list = []
 
@@ -598,10 +647,10 @@ class Simulation:
         start, changed = time.perf_counter(), False
         self.changes = []
         for substep in range(self.substeps):
-            if self._moving:  # grabbed points move at constant velocity
+            if self._moving:  # grabbed points move with their velocity or keyframes
                 elapsed = (self.frame * self.substeps + substep + 1) * self.dt
                 self.control.attachment_target.assign(
-                    (self._targets0 + elapsed * self._target_velocity).astype(np.float32))
+                    (self._targets0 + self._motion.offset(elapsed)).astype(np.float32))
             self.solver.step(self.state, self._next, self.control, self.dt)
             self.state, self._next = self._next, self.state
             change = self.fracture.step(self.model, self.state) if self.fracture else None
