@@ -102,3 +102,20 @@ def load_tool(name: str):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+class Pinhole:
+    """A stand-in camera at the origin looking along +z: u = fx x/z + cx, v = fy y/z + cy
+    (the duck type of :class:`wcut.ar.camera.Camera` that metrics and overlays use)."""
+
+    def __init__(self, width=160, height=120, fx=200.0, fy=200.0, cx=80.0, cy=60.0):
+        self.width, self.height = width, height
+        self.fx, self.fy, self.cx, self.cy = fx, fy, cx, cy
+
+    def project(self, points):
+        p = np.asarray(points, dtype=np.float64)
+        z = p[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = self.fx * p[:, 0] / z + self.cx
+            v = self.fy * p[:, 1] / z + self.cy
+        return np.stack([u, v], axis=1), z

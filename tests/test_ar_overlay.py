@@ -9,18 +9,7 @@ import pytest
 from wcut.ar.overlay import ALPHA, INTERNAL_COLORS, OverlayError, VideoOut, draw_overlay
 from wcut.errors import ExportError, WcutError
 
-
-class Pinhole:
-    """A stand-in camera at the origin looking along +z: u = fx x/z + cx, v = fy y/z + cy."""
-
-    def __init__(self, width=160, height=120, fx=200.0, fy=200.0, cx=80.0, cy=60.0):
-        self.width, self.height = width, height
-        self.fx, self.fy, self.cx, self.cy = fx, fy, cx, cy
-
-    def project(self, points):
-        p = np.asarray(points, dtype=np.float64)
-        z = p[:, 2]
-        return np.stack([self.fx * p[:, 0] / z + self.cx, self.fy * p[:, 1] / z + self.cy], axis=1), z
+from conftest import Pinhole
 
 
 def square(half, z):
