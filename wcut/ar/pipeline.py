@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from ..cut.surface import TriangleSurface, strip
-from ..errors import CaptureError, WcutError
+from ..errors import CaptureError, SimulationError, WcutError
 from ..io import atomic_path
 from ..model import Attachments, Model
 from ..scene import _progress, render_surface
@@ -117,6 +117,8 @@ class ArTracker:
         self.mesh = capture.model
         rest, tets = self.mesh.vertices, self.mesh.tets
         self.dt = 1.0 / (p.video["fps"] * p.solver["substeps"])
+        self._rest_centre = rest.mean(axis=0).astype(np.float32)
+        self._rest_size = float(np.linalg.norm(np.ptp(rest, axis=0)))
 
         gray = cv2.cvtColor(first_frame, cv2.COLOR_BGR2GRAY)
         f = p.features
@@ -210,6 +212,7 @@ class ArTracker:
             self.solver.step(self.state, self._next, self.control, self.dt)
             self.state, self._next = self._next, self.state
         self.solver.check_finite()
+        self._check_bounded()
         if self.detector is None:
             return 0.0
         current = self.features_on_model()
@@ -219,6 +222,17 @@ class ArTracker:
         if found is not None:
             self._cut(found)
         return elapsed
+
+    def _check_bounded(self) -> None:
+        """Raise :class:`wcut.SimulationError` when the model has left the scene: a vertex
+        farther from the model's rest centre than 100 times its rest size. (A finite but
+        exploding model would otherwise go on into the cutter with absurd coordinates.)"""
+        x = self.state.particle_q.numpy()
+        reach = np.abs(x - self._rest_centre).max()
+        if not reach <= 100.0 * self._rest_size:
+            raise SimulationError(f"the model diverged: a vertex is {reach:.3g} m from its rest centre (rest size "
+                                  f"{self._rest_size:.3g} m); try more solver.substeps or cg_iterations, or stiffer "
+                                  f"springs")
 
     def _set_pulling(self, pulling: np.ndarray) -> None:
         self.pulling = pulling
@@ -373,6 +387,7 @@ def run_ar(directory, output, *, overlay=None, metrics=None, cut: bool = True, f
                     for polygon in polygons:
                         if len(polygon) > 1:
                             pixels = camera.project(mapped_points(ar.mesh.vertices, ar.mesh.tets, x, polygon))[0]
+                            pixels = pixels[np.isfinite(pixels).all(axis=1)]  # behind the camera: not drawn
                             cv2.polylines(drawn, [np.round(pixels).astype(np.int32)], False, (0, 0, 255), 2)
                     video.write(drawn)
                 if index == 0 and capture.truth is not None:
