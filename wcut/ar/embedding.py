@@ -29,6 +29,13 @@ def _barycentric(rest: np.ndarray, tets: np.ndarray, points: np.ndarray) -> np.n
     return np.concatenate([xi, 1.0 - xi.sum(axis=1, keepdims=True)], axis=1)
 
 
+def _nearest(rest: np.ndarray, tets: np.ndarray, points: np.ndarray):
+    """:func:`_best_of` over the 32 elements whose centroids are nearest each point."""
+    count = min(len(tets), 32)
+    _, candidates = cKDTree(rest[tets[:, :4]].mean(axis=1)).query(points, k=count)
+    return _best_of(rest, tets, points, np.asarray(candidates).reshape(len(points), count))
+
+
 def _best_of(rest: np.ndarray, tets: np.ndarray, points: np.ndarray, candidates: np.ndarray):
     """For each point, the candidate element (``candidates`` (P, C), -1 for none) whose
     barycentric coordinates it violates least: (element (P,), weights (P, 4), worst (P,))."""
@@ -78,10 +85,7 @@ class Embedding:
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         if len(points) == 0:
             return cls(np.zeros(0, np.int64), np.zeros((0, 4)), points), np.zeros(0, bool)
-        centroids = rest[tets[:, :4]].mean(axis=1)
-        count = min(len(tets), 32)
-        _, candidates = cKDTree(centroids).query(points, k=count)
-        element, bary, worst = _best_of(rest, tets, points, np.asarray(candidates).reshape(len(points), count))
+        element, bary, worst = _nearest(rest, tets, points)
         inside = np.isfinite(points).all(axis=1) & (worst >= -tolerance)
         return cls(element[inside].astype(np.int64), _clamped(bary[inside]), points[inside]), inside
 
@@ -131,8 +135,5 @@ def mapped_points(rest: np.ndarray, tets: np.ndarray, x: np.ndarray, points) -> 
     cut's look-ahead beyond the boundary) is extrapolated by its nearest element's map rather
     than clamped onto the surface."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    centroids = rest[tets[:, :4]].mean(axis=1)
-    count = min(len(tets), 32)
-    _, candidates = cKDTree(centroids).query(points, k=count)
-    element, bary, _ = _best_of(rest, tets, points, np.asarray(candidates).reshape(len(points), count))
+    element, bary, _ = _nearest(rest, tets, points)
     return np.einsum("kc,kcj->kj", bary, x[tets[element, :4]])

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..cut.surface import TriangleSurface, strip
+from ..cut.surface import joined, strip
 from ..errors import CaptureError, SimulationError, WcutError
 from ..io import atomic_path
 from ..model import Attachments, Model
@@ -108,7 +108,6 @@ class ArTracker:
 
     def __init__(self, capture: Capture, first_frame: np.ndarray, *, cut: bool = True, device=None):
         from ..cut import Cutter
-        from ..solver import SolverCorotational  # noqa: F401  (imported for _solver)
         from ..topology import TetTopology
         from .render import Renderer
 
@@ -281,12 +280,12 @@ class ArTracker:
         current_pieces = [s for s in (strip(a[1], b[1]) for a, b in zip(path, path[1:])) if s is not None]
         if not rest_pieces:
             return
-        increment = _joined(rest_pieces)
+        increment = joined(rest_pieces)
         change = self.cutter.cut(increment, progressive=True, rest=True).change
         for s in self.internal:  # eq. 7.12: the structure's triangles the cut crosses go
             s.cut(increment)
         if current_pieces:  # springs near the cut would close it again (figure 7.8)
-            near = _joined(current_pieces).distance(self.features_on_model(), self.margin) <= self.margin
+            near = joined(current_pieces).distance(self.features_on_model(), self.margin) <= self.margin
             self.springs_removed += int((self.pulling & near).sum())
             self.pulling = self.pulling & ~near
         if change.is_empty:
@@ -307,15 +306,6 @@ class ArTracker:
         self._next, self.control = self.model.state(), self.model.control()
         self.control.attachment_target.assign(targets)
         self.solver = self._solver()
-
-
-def _joined(surfaces) -> TriangleSurface:
-    vertices, triangles, base = [], [], 0
-    for s in surfaces:
-        vertices.append(s.vertices)
-        triangles.append(s.triangles + base)
-        base += len(s.vertices)
-    return TriangleSurface(np.concatenate(vertices), np.concatenate(triangles))
 
 
 def _mean_spacing(points: np.ndarray) -> float:
@@ -410,8 +400,8 @@ def run_ar(directory, output, *, overlay=None, metrics=None, cut: bool = True, f
             result.frames = index
             last = index - 1
             x = ar.state.particle_q.numpy().astype(np.float64)
-            points = render_surface(ar.mesh).points(x)
-            triangles = render_surface(ar.mesh).triangles
+            final = render_surface(ar.mesh)
+            points, triangles = final.points(x), final.triangles
             if capture.truth is not None:
                 truth_mask, truth = capture.truth_frame(last)
                 result.dice_final = dice(rasterize(camera, points, triangles), truth_mask)

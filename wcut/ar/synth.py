@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import shutil
 import tempfile
@@ -45,6 +44,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..cut.surface import TriangleSurface, joined
 from ..errors import CaptureError, SceneError
 from ..scene import Scene, Simulation, _parse, _parse_mesh, _progress, _table, build_mesh, render_surface, tomllib
 from .camera import Camera
@@ -220,7 +220,7 @@ def synthesize(path, directory, *, frames: int | None = None, progress: bool | N
         camera.to_json(work / "camera.json")
         model_mesh.save(work / "model.vtu")
         for t, (v, f) in zip(synth["internal"], tubes):
-            _save_obj(work / "internal" / f"{t['name']}.obj", v, f)
+            TriangleSurface(v, f).save(work / "internal" / f"{t['name']}.obj")
         params = {k: v for k, v in synth["params"].items()}
         params.setdefault("video", {})["fps"] = scene.simulation["fps"]
         (work / "params.toml").write_text(toml_text(params), encoding="utf-8")
@@ -266,7 +266,7 @@ def synthesize(path, directory, *, frames: int | None = None, progress: bool | N
         finally:
             bar.close()
         if swept:
-            _save_obj(work / "truth" / "cut.obj", *_concatenated(swept))
+            joined(swept).save(work / "truth" / "cut.obj")
         truth = {"frames": frames + 1, "fps": scene.simulation["fps"], "cut_frames": cut_frames,
                  "scene": scene.name, "truth_elements": int(sim.model.tet_count),
                  "internal": [t.name for t in truths]}
@@ -278,21 +278,6 @@ def synthesize(path, directory, *, frames: int | None = None, progress: bool | N
         if work.exists():
             shutil.rmtree(work, ignore_errors=True)
     return SynthResult(directory, frames + 1, cut_frames, int(sim.model.tet_count), int(model_mesh.tet_count))
-
-
-def _concatenated(surfaces) -> tuple[np.ndarray, np.ndarray]:
-    vertices, triangles, base = [], [], 0
-    for s in surfaces:
-        vertices.append(s.vertices)
-        triangles.append(s.triangles + base)
-        base += len(s.vertices)
-    return np.concatenate(vertices), np.concatenate(triangles)
-
-
-def _save_obj(path: Path, vertices, triangles) -> None:
-    with open(path, "w", encoding="utf-8") as f:
-        f.writelines(f"v {x!r} {y!r} {z!r}\n" for x, y, z in np.asarray(vertices, float).tolist())
-        f.writelines(f"f {i + 1} {j + 1} {k + 1}\n" for i, j, k in np.asarray(triangles).tolist())
 
 
 def _imwrite(path: Path, image: np.ndarray) -> None:

@@ -586,6 +586,16 @@ class SweptBlade:
         return self._sweep(self.blade[:frame + 1])
 
 
+def joined(surfaces) -> TriangleSurface:
+    """One :class:`TriangleSurface` of several (their vertices not welded)."""
+    vertices, triangles, base = [], [], 0
+    for s in surfaces:
+        vertices.append(s.vertices)
+        triangles.append(s.triangles + base)
+        base += len(s.vertices)
+    return TriangleSurface(np.concatenate(vertices), np.concatenate(triangles))
+
+
 def strip(before, after) -> TriangleSurface | None:
     """The surface swept by a polyline moving from ``before`` to ``after`` ((n, 3) each, m):
     quads (before[i], before[i+1], after[i+1], after[i]) split in two triangles, oriented as
