@@ -114,3 +114,74 @@ def extract_rotations_svd(F: wp.array(dtype=wp.mat33), R_out: wp.array(dtype=wp.
     """SVD rotations of a batch of 3x3 matrices (for tests and benchmarks)."""
     i = wp.tid()
     R_out[i] = svd_rotation(F[i])
+
+
+@wp.func
+def symmetric_eigenvalues(S: wp.mat33):
+    """Eigenvalues of a symmetric 3x3 matrix, ascending, in closed form (the trigonometric
+    solution of the characteristic cubic; no iteration, no eigenvectors)."""
+    off = S[0, 1] * S[0, 1] + S[0, 2] * S[0, 2] + S[1, 2] * S[1, 2]
+    q = wp.trace(S) / 3.0
+    a = S[0, 0] - q
+    b = S[1, 1] - q
+    c = S[2, 2] - q
+    p2 = a * a + b * b + c * c + 2.0 * off
+    if p2 <= 1.0e-24 * (q * q + 1.0e-30):
+        return wp.vec3(q, q, q)  # isotropic to rounding
+    p = wp.sqrt(p2 / 6.0)
+    B = (S - q * wp.identity(3, float)) * (1.0 / p)
+    r = wp.clamp(0.5 * wp.determinant(B), -1.0, 1.0)
+    phi = wp.acos(r) / 3.0
+    largest = q + 2.0 * p * wp.cos(phi)
+    smallest = q + 2.0 * p * wp.cos(phi + 2.0943951023931953)  # + 2 pi / 3
+    return wp.vec3(smallest, 3.0 * q - largest - smallest, largest)
+
+
+@wp.func
+def axial(H: wp.mat33):
+    """Axial vector w of the skew part of H: ``(H - H^T) / 2 = [w]_x``."""
+    return 0.5 * wp.vec3(H[2, 1] - H[1, 2], H[0, 2] - H[2, 0], H[1, 0] - H[0, 1])
+
+
+@wp.func
+def rotation_stiffness(V: wp.mat33, mu: float, lam: float):
+    """The stiffness of the rotation's variation, the term a corotational solve that holds R
+    fixed leaves out, projected to be positive semi-definite (world axes, units of mu).
+
+    With ``P = R sigma(S - I) = 2 mu (F - R) + lam tr(S - I) R`` (``F = R S``), the exact
+    differential is ``dP = R sigma(R^T dF) + R [G a]_x`` where ``a`` is the axial vector of the
+    skew part of ``R^T dF`` and, from the polar differential ``skew(R^T dF) = (Omega S +
+    S Omega) / 2`` with ``dR = R Omega``,
+
+        G = 2 mu I + 2 c (tr(S) I - S)^-1,    c = lam tr(S - I) - 2 mu.
+
+    In world axes (``V = F R^T = R S R^T``, the argument) the term is ``[G_w b]_x R`` with
+    ``b = axial(dF R^T)`` and ``G_w = R G R^T``, the same formula in V. Its eigenvalues are
+    ``g_i = 2 mu + 2 c / (tr S - s_i)``: zero at rest, positive under tension (the stiffness
+    that keeps a taut string straight, without which transverse motion of a stretched element
+    is integrated explicitly and goes unstable once ``dt`` exceeds about ``h sqrt(rho/sigma)``),
+    negative under compression (buckling). The negative part would make the system matrix
+    indefinite, so it is dropped: when the eigenvalues straddle zero the result is the chord
+    ``g_max (G - g_min I) / (g_max - g_min)``, which needs only the eigenvalues, is positive
+    semi-definite, bounds the projection ``max(g_i, 0)`` from above and is continuous with the
+    two pure cases (all ``g_i >= 0``: G itself; all ``<= 0``: zero).
+    """
+    S = 0.5 * (V + wp.transpose(V))  # V is symmetric up to the iterated rotation's tolerance
+    tr = wp.trace(S)
+    s = symmetric_eigenvalues(S)
+    m_min = tr - s[2]  # eigenvalues of tr(S) I - S
+    m_max = tr - s[0]
+    zero = wp.mat33(0.0)
+    if m_min <= 1.0e-3 * wp.abs(tr) or m_min <= 0.0:
+        return zero  # flattened or inverted: no meaningful rotation stiffness
+    c = lam * (tr - 3.0) - 2.0 * mu
+    G = 2.0 * mu * wp.identity(3, float) + 2.0 * c * wp.inverse(tr * wp.identity(3, float) - S)
+    if c >= 0.0:
+        return G  # every g_i >= 2 mu
+    g_low = 2.0 * mu + 2.0 * c / m_min
+    g_high = 2.0 * mu + 2.0 * c / m_max
+    if g_low >= 0.0:
+        return G
+    if g_high <= 0.0:
+        return zero
+    return (g_high / (g_high - g_low)) * (G - g_low * wp.identity(3, float))

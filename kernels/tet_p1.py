@@ -11,11 +11,17 @@ The element stiffness of eq. 3.48 applied to nodal vectors ``u_l`` is
 stiffness of eq. 3.49 needs no 12x12 matrix: ``R K R^T u`` is the same expression with the
 rotated gradients ``g_l = R grad N_l``. :func:`tet_forces` stores those rotated gradients
 once per step and :func:`tet_matvec` reuses them in every conjugate-gradient iteration.
+
+The system matrix uses the tangent ``K_t = R K R^T + K_G``: ``K_G`` is the stiffness of the
+rotation's variation (:func:`wcut.kernels.rotation.rotation_stiffness`, a symmetric 3x3 ``G``
+per element, projected to its tension part), whose stress for a rotated displacement gradient
+H is ``[G axial(H)]_x``. It adds ~20 flops per element to the product and makes the transverse
+stiffness of stretched elements implicit. With ``G = 0`` the matrix is the thesis's R K R^T.
 """
 
 import warp as wp
 
-from .rotation import polar_rotation
+from .rotation import axial, polar_rotation, rotation_stiffness
 
 
 @wp.func
@@ -36,6 +42,23 @@ def scatter_columns(t: wp.vec4i, F: wp.mat33, y: wp.array(dtype=wp.vec3)):
     wp.atomic_add(y, t[3], -(f0 + f1 + f2))
 
 
+@wp.func
+def rotation_stiffness_diagonal(G: wp.mat33, r: wp.vec3):
+    """Diagonal of the 3x3 block ``[r]_x^T G [r]_x / 2`` that the rotation stiffness G
+    (:func:`wcut.kernels.rotation.rotation_stiffness`) adds for a node with rotated gradient r."""
+    return 0.5 * wp.vec3(G[1, 1] * r[2] * r[2] + G[2, 2] * r[1] * r[1] - 2.0 * G[1, 2] * r[1] * r[2],
+                         G[0, 0] * r[2] * r[2] + G[2, 2] * r[0] * r[0] - 2.0 * G[0, 2] * r[0] * r[2],
+                         G[0, 0] * r[1] * r[1] + G[1, 1] * r[0] * r[0] - 2.0 * G[0, 1] * r[0] * r[1])
+
+
+@wp.func
+def tangent_stress(H: wp.mat33, mu: float, lam: float, G: wp.mat33, scale: float):
+    """``scale (sigma(H) + [G axial(H)]_x)``: the stress of the tangent stiffness (corotated
+    Hooke plus rotation stiffness G, which already holds ``V mu`` units) for the rotated
+    displacement gradient ``H = Dx Dm^-1 R^T``."""
+    return scale * (hooke(H, mu, lam) + wp.skew(G * axial(H)))
+
+
 @wp.kernel
 def tet_forces(
     tet_indices: wp.array(dtype=wp.vec4i),
@@ -49,26 +72,29 @@ def tet_forces(
     matrix_scale: float,
     rotation_iterations: int,
     rotation_tolerance: float,
+    with_rotation_stiffness: int,
     tet_rotation_out: wp.array(dtype=wp.quat),
     tet_rotated_gradients: wp.array(dtype=wp.mat33),
+    tet_rotation_stiffness: wp.array(dtype=wp.mat33),
     particle_f: wp.array(dtype=wp.vec3),
     particle_diagonal: wp.array(dtype=wp.vec3),
     product_start: wp.array(dtype=wp.vec3),
 ):
     """Per element, once per step: rotation, rotated gradients and every stiffness term.
 
-    Scatters (with ``c_v = velocity_scale``, ``c_A = matrix_scale``):
+    Scatters (with ``c_v = velocity_scale``, ``c_A = matrix_scale`` and the tangent stiffness
+    ``K_t = R K R^T + K_G``, where ``K_G`` is the rotation stiffness stored in
+    ``tet_rotation_stiffness`` when ``with_rotation_stiffness`` is 1, else zero):
 
-    - ``particle_f += -R K (R^T x - X) - c_v R K R^T v``: the corotational internal force
+    - ``particle_f += -R K (R^T x - X) - c_v K_t v``: the corotational internal force
       (eq. 3.49) and the stiffness part of the implicit right-hand side and of Rayleigh
       damping (eq. 3.52, 3.69);
-    - ``particle_diagonal += c_A diag(R K R^T)`` (Jacobi preconditioner);
-    - ``product_start += c_A R K R^T dv_start``: the stiffness part of ``A dv0`` for the
+    - ``particle_diagonal += c_A diag(K_t)`` (Jacobi preconditioner);
+    - ``product_start += c_A K_t dv_start``: the stiffness part of ``A dv0`` for the
       warm-started conjugate gradient, so it needs no separate product.
 
-    Hooke's law is isotropic and linear, so ``R sigma(R^T F - I) R^T = sigma(F R^T - I)``
-    and all three stress terms combine into one ``sigma((Ds + c_v Dv) g - I)``, where
-    ``g = Dm^{-1} R^T`` holds the rotated gradients and ``F R^T = Ds g``.
+    Hooke's law is isotropic and linear, so ``R sigma(R^T F - I) R^T = sigma(F R^T - I)``, with
+    ``g = Dm^{-1} R^T`` holding the rotated gradients and ``F R^T = Ds g``.
     """
     e = wp.tid()
     t = tet_indices[e]
@@ -82,29 +108,40 @@ def tet_forces(
     gT = wp.transpose(g)
     c = tet_stiffness[e]
 
+    Ks = wp.mat33(0.0)
+    if with_rotation_stiffness != 0:
+        Ks = rotation_stiffness(Ds * g, c[0], c[1])
+    tet_rotation_stiffness[e] = Ks
+
     v3 = particle_qd[t[3]]
     Dv = wp.matrix_from_cols(particle_qd[t[0]] - v3, particle_qd[t[1]] - v3, particle_qd[t[2]] - v3)
-    F = -hooke((Ds + velocity_scale * Dv) * g - wp.identity(3, float), c[0], c[1]) * gT
-    scatter_columns(t, F, particle_f)
+    # strain and damping in one Hooke stress, as in the thesis's form: computed apart, their
+    # float32 rounding lets a thin element far from the origin creep instead of resting
+    stress = hooke((Ds + velocity_scale * Dv) * g - wp.identity(3, float), c[0], c[1])
+    stress = stress + velocity_scale * wp.skew(Ks * axial(Dv * g))
+    scatter_columns(t, -stress * gT, particle_f)
 
     d3 = dv_start[t[3]]
     Dx = wp.matrix_from_cols(dv_start[t[0]] - d3, dv_start[t[1]] - d3, dv_start[t[2]] - d3)
-    scatter_columns(t, hooke(Dx * g, matrix_scale * c[0], matrix_scale * c[1]) * gT, product_start)
+    scatter_columns(t, tangent_stress(Dx * g, c[0], c[1], Ks, matrix_scale) * gT, product_start)
 
-    # diagonal of the 3x3 block K_ll = mu |g_l|^2 I + (mu + lambda) g_l g_l^T
+    # diagonal of the 3x3 block K_ll = mu |g_l|^2 I + (mu + lambda) g_l g_l^T, plus K_G's
     a = c[0] * matrix_scale
     b = (c[0] + c[1]) * matrix_scale
     g3 = -(g[0] + g[1] + g[2])
-    wp.atomic_add(particle_diagonal, t[0], a * wp.dot(g[0], g[0]) * wp.vec3(1.0) + b * wp.cw_mul(g[0], g[0]))
-    wp.atomic_add(particle_diagonal, t[1], a * wp.dot(g[1], g[1]) * wp.vec3(1.0) + b * wp.cw_mul(g[1], g[1]))
-    wp.atomic_add(particle_diagonal, t[2], a * wp.dot(g[2], g[2]) * wp.vec3(1.0) + b * wp.cw_mul(g[2], g[2]))
-    wp.atomic_add(particle_diagonal, t[3], a * wp.dot(g3, g3) * wp.vec3(1.0) + b * wp.cw_mul(g3, g3))
+    for l in range(4):
+        r = g3
+        if l < 3:
+            r = g[l]
+        wp.atomic_add(particle_diagonal, t[l], a * wp.dot(r, r) * wp.vec3(1.0) + b * wp.cw_mul(r, r)
+                      + matrix_scale * rotation_stiffness_diagonal(Ks, r))
 
 
 @wp.kernel
 def tet_matvec(
     tet_indices: wp.array(dtype=wp.vec4i),
     tet_rotated_gradients: wp.array(dtype=wp.mat33),
+    tet_rotation_stiffness: wp.array(dtype=wp.mat33),
     tet_stiffness: wp.array(dtype=wp.vec2),
     x: wp.array(dtype=wp.vec3),
     scale: float,
@@ -113,10 +150,10 @@ def tet_matvec(
     threshold: wp.array(dtype=float),
     y: wp.array(dtype=wp.vec3),
 ):
-    """y += scale R K R^T x, matrix-free.
+    """y += scale K_t x with the tangent stiffness ``K_t = R K R^T + K_G``, matrix-free.
 
-    Uses the rotated gradients of the last :func:`tet_forces`. Returns at once when
-    ``rz[k] <= threshold[0]`` (a converged conjugate gradient keeps its launches, which then
+    Uses the rotated gradients and rotation stiffness of the last :func:`tet_forces`. Returns
+    at once when ``rz[k] <= threshold[0]`` (a converged conjugate gradient keeps its launches, which then
     cost almost nothing, so no host synchronisation is needed).
     """
     if rz[k] <= threshold[0]:
@@ -124,10 +161,10 @@ def tet_matvec(
     e = wp.tid()
     t = tet_indices[e]
     g = tet_rotated_gradients[e]
-    c = scale * tet_stiffness[e]
+    c = tet_stiffness[e]
     x3 = x[t[3]]
-    G = wp.matrix_from_cols(x[t[0]] - x3, x[t[1]] - x3, x[t[2]] - x3) * g
-    scatter_columns(t, hooke(G, c[0], c[1]) * wp.transpose(g), y)
+    H = wp.matrix_from_cols(x[t[0]] - x3, x[t[1]] - x3, x[t[2]] - x3) * g
+    scatter_columns(t, tangent_stress(H, c[0], c[1], tet_rotation_stiffness[e], scale) * wp.transpose(g), y)
 
 
 @wp.kernel

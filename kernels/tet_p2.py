@@ -23,13 +23,14 @@ element instead of one, warm-started so each takes one or two Newton iterations.
 
 Force on node ``a``: ``f_a = -sum_g w_g det J_g R_g sigma(R_g^T F_g - I) grad_X N_a(xi_g)``
 (thesis eq. 3.48-3.49 integrated by quadrature), and the stiffness product uses, as for P1,
-the rotated gradients ``g = J^{-1} R^T`` stored once per step.
+the rotated gradients ``g = J^{-1} R^T`` stored once per step, and the rotation stiffness of
+each Gauss point (``wcut.kernels.rotation.rotation_stiffness``) for the tangent ``K_t``.
 """
 
 import warp as wp
 
-from .rotation import polar_rotation
-from .tet_p1 import hooke
+from .rotation import axial, polar_rotation, rotation_stiffness
+from .tet_p1 import hooke, rotation_stiffness_diagonal, tangent_stress
 
 vec10i = wp.types.vector(length=10, dtype=wp.int32)
 mat10x3 = wp.types.matrix(shape=(10, 3), dtype=float)
@@ -195,15 +196,18 @@ def tet_forces(
     matrix_scale: float,
     rotation_iterations: int,
     rotation_tolerance: float,
+    with_rotation_stiffness: int,
     tet_rotation_out: wp.array2d(dtype=wp.quat),
     tet_rotated_gradients: wp.array2d(dtype=wp.mat33),
+    tet_rotation_stiffness: wp.array2d(dtype=wp.mat33),
     particle_f: wp.array(dtype=wp.vec3),
     particle_diagonal: wp.array(dtype=wp.vec3),
     product_start: wp.array(dtype=wp.vec3),
 ):
-    """Per element, once per step: rotations and rotated gradients at the Gauss points, and
-    the same three terms as ``tet_p1.tet_forces``: ``particle_f += -R K (R^T x - X) - c_v R K
-    R^T v``, ``particle_diagonal += c_A diag(R K R^T)``, ``product_start += c_A R K R^T dv0``."""
+    """Per element, once per step: rotations, rotated gradients and rotation stiffness at the
+    Gauss points, and the same three terms as ``tet_p1.tet_forces`` with the tangent stiffness
+    ``K_t``: ``particle_f += -R K (R^T x - X) - c_v K_t v``, ``particle_diagonal += c_A
+    diag(K_t)``, ``product_start += c_A K_t dv0``."""
     e = wp.tid()
     t = tet_indices[e]
     X = gather(particle_q, t)
@@ -224,17 +228,24 @@ def tet_forces(
         tet_rotated_gradients[e, g] = gm
         gT = wp.transpose(gm)
         c = tet_stiffness[e, g]
-        strain = gauss_gradient(W, BW, g) * gm - wp.identity(3, float)
-        force = add_gauss_nodal(force, -hooke(strain, c[0], c[1]) * gT, g)
+        V = Ds * gm  # F R^T
+        Ks = wp.mat33(0.0)
+        if with_rotation_stiffness != 0:
+            Ks = rotation_stiffness(V, c[0], c[1])
+        tet_rotation_stiffness[e, g] = Ks
+        HW = gauss_gradient(W, BW, g) * gm  # V + c_v (velocity gradient) R^T
+        stress = hooke(HW - wp.identity(3, float), c[0], c[1]) + wp.skew(Ks * axial(HW - V))
+        force = add_gauss_nodal(force, -stress * gT, g)
         product = add_gauss_nodal(
-            product, hooke(gauss_gradient(D, BD, g) * gm, matrix_scale * c[0], matrix_scale * c[1]) * gT, g)
+            product, tangent_stress(gauss_gradient(D, BD, g) * gm, c[0], c[1], Ks, matrix_scale) * gT, g)
         # diagonal 3x3 block of node a: mu |r_a|^2 I + (mu + lambda) r_a r_a^T, r_a = R grad N_a
         r = nodal_vectors(gT, gauss_point(g))
         a_coef = matrix_scale * c[0]
         b_coef = matrix_scale * (c[0] + c[1])
         for a in range(10):
             ra = r[a]
-            diagonal[a] = diagonal[a] + a_coef * wp.dot(ra, ra) * wp.vec3(1.0) + b_coef * wp.cw_mul(ra, ra)
+            diagonal[a] = (diagonal[a] + a_coef * wp.dot(ra, ra) * wp.vec3(1.0) + b_coef * wp.cw_mul(ra, ra)
+                           + matrix_scale * rotation_stiffness_diagonal(Ks, ra))
     scatter(t, finish_nodal(force), particle_f)
     scatter(t, finish_nodal(product), product_start)
     scatter(t, diagonal, particle_diagonal)
@@ -244,6 +255,7 @@ def tet_forces(
 def tet_matvec(
     tet_indices: wp.array(dtype=vec10i),
     tet_rotated_gradients: wp.array2d(dtype=wp.mat33),
+    tet_rotation_stiffness: wp.array2d(dtype=wp.mat33),
     tet_stiffness: wp.array2d(dtype=wp.vec2),
     x: wp.array(dtype=wp.vec3),
     scale: float,
@@ -252,8 +264,8 @@ def tet_matvec(
     threshold: wp.array(dtype=float),
     y: wp.array(dtype=wp.vec3),
 ):
-    """y += scale R K R^T x, matrix-free, with the rotated gradients of the last
-    :func:`tet_forces`; returns at once when ``rz[k] <= threshold[0]`` (as ``tet_p1.tet_matvec``)."""
+    """y += scale K_t x, matrix-free, with the rotated gradients and rotation stiffness of the
+    last :func:`tet_forces`; returns at once when ``rz[k] <= threshold[0]`` (as ``tet_p1.tet_matvec``)."""
     if rz[k] <= threshold[0]:
         return
     e = wp.tid()
@@ -263,8 +275,9 @@ def tet_matvec(
     acc = mat14x3()
     for g in range(4):
         gm = tet_rotated_gradients[e, g]
-        c = scale * tet_stiffness[e, g]
-        acc = add_gauss_nodal(acc, hooke(gauss_gradient(X, B, g) * gm, c[0], c[1]) * wp.transpose(gm), g)
+        c = tet_stiffness[e, g]
+        stress = tangent_stress(gauss_gradient(X, B, g) * gm, c[0], c[1], tet_rotation_stiffness[e, g], scale)
+        acc = add_gauss_nodal(acc, stress * wp.transpose(gm), g)
     scatter(t, finish_nodal(acc), y)
 
 

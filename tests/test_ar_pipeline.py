@@ -117,6 +117,7 @@ def test_command_line_runs_and_reports(side_capture, tmp_path, capsys):
     (lambda d: shutil.rmtree(d / "frames"), "no video"),
     (lambda d: (d / "params.toml").write_text("[detection]\ntua = 3\n"), "detection.tua"),
     (lambda d: (d / "params.toml").write_text("[springs]\nstiffness = -1.0\n"), "springs.stiffness"),
+    (lambda d: (d / "params.toml").write_text("[solver]\nrotation_stiffness = 1\n"), "solver.rotation_stiffness"),
 ])
 def test_a_broken_capture_is_one_line_naming_the_file_and_nothing_is_written(side_capture, tmp_path, capsys,
                                                                              damage, message):

@@ -381,6 +381,7 @@ def test_stress_colours_share_one_scale_over_the_whole_run(tmp_path, tiny_scene)
     ("[solver]\nrotation_iterations = 0\n", "solver.rotation_iterations"),
     ("[solver]\ndt = 1e-12\n", "solver.dt"),
     ("[solver]\ncg_tolerance = -1.0\n", "solver.cg_tolerance"),
+    ("[solver]\nrotation_stiffness = 1\n", "solver.rotation_stiffness"),
     ("[simulation]\nfps = 1e-9\n", "solver.dt"),
     ("[material]\npoisson_ratio = 0.5\n", "material.poisson_ratio"),
     ("[material]\ndensity = 0.0\n", "material.density"),

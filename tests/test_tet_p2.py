@@ -33,26 +33,32 @@ def straight():
     return to_quadratic(wcut.beam(3, 3, 3, size=(0.3, 0.3, 0.3)))
 
 
-def element_pass(model, x, v=None, dv=None, velocity_scale=0.0, matrix_scale=1.0):
-    """Launch tet_forces from identity rotations, iterated to convergence; float64 results."""
+def element_pass(model, x, v=None, dv=None, velocity_scale=0.0, matrix_scale=1.0, rotation_stiffness=False):
+    """Launch tet_forces from identity rotations, iterated to convergence; float64 results
+    (``"tangent"``: the rotation stiffness, zero unless ``rotation_stiffness``)."""
     n = model.particle_count
     zeros = np.zeros((n, 3))
     out = {name: wp.zeros(n, dtype=wp.vec3) for name in ("f", "diag", "start")}
     q = wp.full(model.tet_rotation_shape, wp.quat_identity(), dtype=wp.quat)
     g = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33)
+    tangent = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33)
     wp.launch(tet_p2.tet_forces, model.tet_count,
               inputs=[model.tet_indices, model.tet_poses, model.tet_stiffness, wp.array(x, dtype=wp.vec3),
                       wp.array(zeros if v is None else v, dtype=wp.vec3),
-                      wp.array(zeros if dv is None else dv, dtype=wp.vec3), q, velocity_scale, matrix_scale, 60, 1e-8],
-              outputs=[q, g, out["f"], out["diag"], out["start"]])
-    return {k: a.numpy().astype(np.float64) for k, a in out.items()} | {"gradients": g, "rotation": q}
+                      wp.array(zeros if dv is None else dv, dtype=wp.vec3), q, velocity_scale, matrix_scale, 60, 1e-8,
+                      int(rotation_stiffness)],
+              outputs=[q, g, tangent, out["f"], out["diag"], out["start"]])
+    return ({k: a.numpy().astype(np.float64) for k, a in out.items()}
+            | {"gradients": g, "rotation": q, "tangent": tangent})
 
 
-def product(model, gradients, p, scale=1.0):
+def product(model, terms, p, scale=1.0):
+    """``scale K_t p`` with the rotated gradients and rotation stiffness of ``element_pass``."""
     y = wp.zeros(model.particle_count, dtype=wp.vec3)
     wp.launch(tet_p2.tet_matvec, model.tet_count,
-              inputs=[model.tet_indices, gradients, model.tet_stiffness, wp.array(p, dtype=wp.vec3), scale, 0,
-                      wp.array([1.0], dtype=float), wp.array([0.0], dtype=float)], outputs=[y])
+              inputs=[model.tet_indices, terms["gradients"], terms["tangent"], model.tet_stiffness,
+                      wp.array(p, dtype=wp.vec3), scale, 0, wp.array([1.0], dtype=float),
+                      wp.array([0.0], dtype=float)], outputs=[y])
     return y.numpy().astype(np.float64)
 
 
@@ -79,7 +85,7 @@ def test_product_and_diagonal_match_the_assembled_corotated_matrix(curved):
     K = reference_p2.stiffness_matrix(rest, curved.tets, E, NU, reference_p2.polar_rotations(x, rest, curved.tets))
     p = np.random.default_rng(2).standard_normal(rest.shape).astype(np.float32)
     expected = (K @ p.astype(np.float64).ravel()).reshape(-1, 3)
-    assert np.abs(product(model, terms["gradients"], p, 2.0) - 2.0 * expected).max() < 2e-5 * np.abs(expected).max()
+    assert np.abs(product(model, terms, p, 2.0) - 2.0 * expected).max() < 2e-5 * np.abs(expected).max()
     np.testing.assert_allclose(terms["diag"], 0.5 * K.diagonal().reshape(-1, 3), rtol=2e-5,
                                atol=1e-6 * K.diagonal().max())
 
@@ -87,12 +93,43 @@ def test_product_and_diagonal_match_the_assembled_corotated_matrix(curved):
 def test_operator_is_symmetric_and_positive(curved):
     model = Model(curved, youngs_modulus=E, poisson_ratio=NU)
     x = deformed(model.particle_q.numpy().astype(np.float64), seed=3)
-    g = element_pass(model, x)["gradients"]
     rng = np.random.default_rng(4)
     a, b = rng.standard_normal((2, model.particle_count, 3)).astype(np.float32)
-    Ka, Kb = product(model, g, a), product(model, g, b)
-    assert np.vdot(b, Ka) == pytest.approx(np.vdot(a, Kb), rel=1e-5)
-    assert np.vdot(a, Ka) > 0
+    for with_tangent in (False, True):
+        terms = element_pass(model, x, rotation_stiffness=with_tangent)
+        Ka, Kb = product(model, terms, a), product(model, terms, b)
+        assert np.vdot(b, Ka) == pytest.approx(np.vdot(a, Kb), rel=1e-5)
+        assert np.vdot(a, Ka) > 0
+        if with_tangent:
+            assert np.vdot(a, Ka) >= np.vdot(a, plain_Ka) * (1 - 1e-6)  # the rotation stiffness adds u.K_G u >= 0
+        plain_Ka = Ka
+
+
+def test_tangent_with_rotation_stiffness_matches_finite_differences_in_tension(curved):
+    """Stretched (15% along a tilted axis, 5% across) and rotated, every Gauss point is in
+    tension: R K R^T + K_G is the force's exact derivative; R K R^T alone misses K_G."""
+    model = Model(curved, youngs_modulus=E, poisson_ratio=NU)
+    rest = model.particle_q.numpy().astype(np.float64)
+    axis = np.array([1.0, 0.4, -0.2]) / np.linalg.norm([1.0, 0.4, -0.2])
+    U = np.eye(3) + 0.15 * np.outer(axis, axis) + 0.05 * (np.eye(3) - np.outer(axis, axis))
+    x = rest @ (Rotation.from_rotvec([0.5, -0.7, 0.2]).as_matrix() @ U).T
+    direction = np.random.default_rng(17).standard_normal(rest.shape)
+    h = 1e-4  # m
+    fd = (element_pass(model, x + h * direction)["f"] - element_pass(model, x - h * direction)["f"]) / (2 * h)
+    errors = {}
+    for with_tangent in (True, False):
+        Kd = product(model, element_pass(model, x, rotation_stiffness=with_tangent), direction)
+        errors[with_tangent] = np.abs(fd + Kd).max() / np.abs(Kd).max()
+    assert errors[True] < 3e-3, errors
+    assert errors[False] > 10 * errors[True], errors
+    terms = element_pass(model, x, rotation_stiffness=True, matrix_scale=0.5, dv=direction)
+    np.testing.assert_allclose(terms["start"], 0.5 * product(model, terms, direction), atol=1e-4 * np.abs(Kd).max())
+    for node in (0, 5, model.particle_count - 1):  # the preconditioner's diagonal includes K_G
+        for axis in range(3):
+            unit = np.zeros_like(rest)
+            unit[node, axis] = 1.0
+            column = product(model, terms, unit, 0.5)
+            assert terms["diag"][node, axis] == pytest.approx(column[node, axis], rel=1e-4)
 
 
 def test_warm_start_product_and_damping_terms(curved):
@@ -103,10 +140,10 @@ def test_warm_start_product_and_damping_terms(curved):
     rng = np.random.default_rng(6)
     v, dv = rng.standard_normal((2, model.particle_count, 3)).astype(np.float32)
     terms = element_pass(model, x, v=v, dv=dv, velocity_scale=0.1, matrix_scale=0.3)
-    Kdv = product(model, terms["gradients"], dv, 0.3)
+    Kdv = product(model, terms, dv, 0.3)
     np.testing.assert_allclose(terms["start"], Kdv, atol=1e-5 * np.abs(Kdv).max())
     f0 = element_pass(model, x)["f"]
-    Kv = product(model, terms["gradients"], v, 0.1)
+    Kv = product(model, terms, v, 0.1)
     np.testing.assert_allclose(terms["f"], f0 - Kv, atol=2e-5 * np.abs(Kv).max())
 
 

@@ -108,8 +108,8 @@ def _warp_optim_cg(solver: SolverCorotational, dt: float):
         wp.launch(cg.operator_mass_axpby, n, inputs=[x, y, solver.inv_diagonal, solver.mass_scale, alpha, beta],
                   outputs=[z], device=d)
         wp.launch(tet_p1.tet_matvec, m.tet_count, device=d,
-                  inputs=[m.tet_indices, solver.tet_rotated_gradients, m.tet_stiffness, x, alpha * scale, 0,
-                          rz_one, zero], outputs=[z])
+                  inputs=[m.tet_indices, solver.tet_rotated_gradients, solver.tet_rotation_stiffness,
+                          m.tet_stiffness, x, alpha * scale, 0, rz_one, zero], outputs=[z])
         wp.launch(cg.operator_restore_fixed_rows, n, inputs=[x, y, solver.inv_diagonal, alpha, beta], outputs=[z],
                   device=d)
 
@@ -160,8 +160,8 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
     y = wp.zeros(model.particle_count, dtype=wp.vec3, device=model.device)
     one, zero = wp.array([1.0], dtype=float, device=model.device), wp.zeros(1, dtype=float, device=model.device)
     matvec = wp.launch(tet_p1.tet_matvec, model.tet_count, device=model.device, record_cmd=True,
-                       inputs=[model.tet_indices, solver.tet_rotated_gradients, model.tet_stiffness,
-                               state.particle_qd, 1.0, 0, one, zero], outputs=[y])
+                       inputs=[model.tet_indices, solver.tet_rotated_gradients, solver.tet_rotation_stiffness,
+                               model.tet_stiffness, state.particle_qd, 1.0, 0, one, zero], outputs=[y])
     matvec_s = _median_seconds(matvec.launch, repeats * 5)
 
     ref = ScipyCorotationalStep(mesh.vertices, mesh.tets, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3,
@@ -213,8 +213,9 @@ def bench_quadratic(name: str, cells, size, *, repeats: int = 20, device=None) -
             one, zero = wp.array([1.0], dtype=float, device=model.device), wp.zeros(1, dtype=float,
                                                                                      device=model.device)
             matvec = wp.launch(tet_p2.tet_matvec, model.tet_count, device=model.device, record_cmd=True,
-                               inputs=[model.tet_indices, solver.tet_rotated_gradients, model.tet_stiffness,
-                                       state.particle_qd, 1.0, 0, one, zero], outputs=[y])
+                               inputs=[model.tet_indices, solver.tet_rotated_gradients,
+                                       solver.tet_rotation_stiffness, model.tet_stiffness, state.particle_qd, 1.0, 0,
+                                       one, zero], outputs=[y])
             matvec_s = _median_seconds(matvec.launch, repeats * 5)
             p2_nodes, p2_tets = model.particle_count, model.tet_count
     per_element = 1e9 / p2_tets

@@ -139,6 +139,10 @@ class ScipyCorotationalStep:
         Barycentric weights ``w_sj`` (dimensionless).
     spring_stiffness : (S,) float
         Spring stiffness ``k_s`` in N/m.
+    rotation_stiffness : bool
+        Add to ``K(x)`` the stiffness of the rotation's variation, projected to its tension part
+        (see :meth:`rotation_stiffness_matrix`), as ``wcut.SolverCorotational`` does by default.
+        False (the default here): the thesis's ``sum_e R_e K_e R_e^T``.
 
     Attributes
     ----------
@@ -172,7 +176,9 @@ class ScipyCorotationalStep:
         spring_indices=None,
         spring_weights=None,
         spring_stiffness=None,
+        rotation_stiffness=False,
     ):
+        self.rotation_stiffness = bool(rotation_stiffness)
         X = _finite_array(rest_positions, "rest_positions", (None, 3))
         n = X.shape[0]
         if n == 0:
@@ -370,20 +376,52 @@ class ScipyCorotationalStep:
         x = self._positions(x)
         return self._internal_forces(x, self._rotations(x))
 
-    def _stiffness_matrix(self, R):
+    def _stiffness_matrix(self, x, R):
         m = self.n_elements
         Ke = self.element_stiffness()
         # view as 16 3x3 blocks K_ab, rotate each: R K_ab R^T
         blocks = Ke.reshape(m, 4, 3, 4, 3).transpose(0, 1, 3, 2, 4)  # [m, a, b, i, j]
         Rb = R[:, None, None, :, :]
         rotated = Rb @ blocks @ np.transpose(Rb, (0, 1, 2, 4, 3))
+        if self.rotation_stiffness:
+            rotated = rotated + self._rotation_stiffness_blocks(x, R)
         rotated = rotated.transpose(0, 1, 3, 2, 4).reshape(m, 12, 12)
         return self._assemble(rotated)
 
+    def _rotation_stiffness_blocks(self, x, R):
+        """Blocks ``[m, a, b]`` (3x3, N/m) of the projected rotation stiffness of each element:
+        ``V/2 [r_a]_x^T G_w [r_b]_x`` with ``r_a = R grad N_a``.
+
+        ``G`` (Pa) comes from the stretch ``S = R^T F`` through its eigen-decomposition (SVD of
+        F): eigenvalues ``g_i = 2 mu + 2 c / (tr S - s_i)`` with ``c = lambda tr(S - I) - 2 mu``,
+        the exact term ``R [G axial(skew(R^T dF))]_x`` that ``R K R^T`` leaves out of
+        ``dP``. Projection: all ``g_i >= 0``: kept; all ``<= 0``: zero; else the chord
+        ``g_max (g_i - g_min) / (g_max - g_min)``.
+        """
+        xe = x[self.tets]
+        F = np.transpose(xe[:, 1:, :] - xe[:, :1, :], (0, 2, 1)) @ self.Dm_inv
+        S = np.transpose(R, (0, 2, 1)) @ F
+        s, vectors = np.linalg.eigh(0.5 * (S + np.transpose(S, (0, 2, 1))))
+        tr = s.sum(axis=1, keepdims=True)
+        c = (self.lam * (tr[:, 0] - 3.0) - 2.0 * self.mu)[:, None]
+        m_i = tr - s
+        g = 2.0 * self.mu[:, None] + 2.0 * c / np.where(m_i > 0, m_i, 1.0)
+        low, high = g.min(axis=1, keepdims=True), g.max(axis=1, keepdims=True)
+        chord = high * (g - low) / np.where(high > low, high - low, 1.0)
+        g = np.where(low >= 0, g, np.where(high <= 0, 0.0, chord))
+        g[(m_i <= 1e-3 * np.abs(tr)).any(axis=1)] = 0.0
+        G = np.einsum("mij,mj,mkj->mik", R @ vectors, g, R @ vectors) * self.volumes[:, None, None]
+        r = self.shape_gradients @ np.transpose(R, (0, 2, 1))  # [m, a] = R grad N_a
+        cross = np.zeros(r.shape + (3,))  # [m, a] = [r_a]_x
+        cross[..., 0, 1], cross[..., 0, 2], cross[..., 1, 2] = -r[..., 2], r[..., 1], -r[..., 0]
+        cross[..., 1, 0], cross[..., 2, 0], cross[..., 2, 1] = r[..., 2], -r[..., 1], r[..., 0]
+        return 0.5 * np.einsum("maji,mjk,mbkl->mabil", cross, G, cross)
+
     def stiffness_matrix(self, x) -> sp.csr_matrix:
-        """Corotational stiffness ``K(x) = sum_e R_e K_e R_e^T`` (thesis eq. 3.49), (3N, 3N) CSR, N/m."""
+        """Corotational stiffness ``K(x) = sum_e R_e K_e R_e^T`` (thesis eq. 3.49), (3N, 3N) CSR,
+        N/m, plus the rotation stiffness when the reference was made with ``rotation_stiffness``."""
         x = self._positions(x)
-        return self._stiffness_matrix(self._rotations(x))
+        return self._stiffness_matrix(x, self._rotations(x))
 
     def spring_matrix(self) -> sp.csr_matrix:
         """Spring stiffness ``K_S = sum_s k_s (w_s w_s^T) (x) I_3``, (3N, 3N) CSR in N/m (cached)."""
@@ -445,7 +483,7 @@ class ScipyCorotationalStep:
         """
         x = self._positions(x)
         dt = self._check_dt(dt)
-        return self._system_matrix(self._stiffness_matrix(self._rotations(x)), dt)
+        return self._system_matrix(self._stiffness_matrix(x, self._rotations(x)), dt)
 
     def _rhs(self, x, v, dt, f_ext, spring_targets, R, K):
         h, a, b = dt, self.rayleigh_mass, self.rayleigh_stiffness
@@ -471,7 +509,7 @@ class ScipyCorotationalStep:
         v = _finite_array(v, "v", (self.n_vertices, 3))
         dt = self._check_dt(dt)
         R = self._rotations(x)
-        return self._rhs(x, v, dt, f_ext, spring_targets, R, self._stiffness_matrix(R))
+        return self._rhs(x, v, dt, f_ext, spring_targets, R, self._stiffness_matrix(x, R))
 
     def step(
         self,
@@ -518,7 +556,7 @@ class ScipyCorotationalStep:
         v[self.fixed] = 0.0
 
         R = self._rotations(x)
-        K = self._stiffness_matrix(R)
+        K = self._stiffness_matrix(x, R)
         A = self._system_matrix(K, dt)
         b = self._rhs(x, v, dt, f_ext, spring_targets, R, K).reshape(-1)
 

@@ -38,7 +38,9 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
                     position. The targets move with velocity = [vx, vy, vz] (m/s) or along
                     keyframes = [[t, dx, dy, dz], ...] (s, m: offsets from the start, linear in
                     between, held after the last)
-    [solver]        dt (s), cg_iterations (<= 10000), cg_tolerance, rotation_iterations
+    [solver]        dt (s), cg_iterations (<= 10000), cg_tolerance, rotation_iterations,
+                    rotation_stiffness (bool, default true: the tangent's rotation term in the
+                    system matrix, see wcut.solver; false: the thesis's R K R^T)
     [simulation]    duration (s), fps (frames per second written)
     [output]        path, stress_colors (bool), stress_max (Pa: top of the colour scale; default:
                     the largest von Mises stress of the run), up_axis ("Z" or "Y"),
@@ -143,7 +145,7 @@ _SCHEMA = {
     "constraints": {"fixed_indices": (_list_of(_integer), []), "fixed_boxes": (_list_of(_box), [])},
     "loads": {"gravity": (_vec3, [0.0, 0.0, -9.81]), "force": (None, [])},
     "solver": {"dt": (_number, 0.01), "cg_iterations": (_integer, 50), "cg_tolerance": (_number, 1.0e-5),
-               "rotation_iterations": (_integer, 8)},
+               "rotation_iterations": (_integer, 8), "rotation_stiffness": (_boolean, True)},
     "simulation": {"duration": (_number, 2.0), "fps": (_number, 30.0)},
     "output": {"path": (_string, None), "stress_colors": (_boolean, True), "stress_max": (_number, None),
                "up_axis": (_string, "Z"), "subdivision": (_integer, 2)},
@@ -628,7 +630,8 @@ class Simulation:
 
         s = self._settings
         return SolverCorotational(self.model, cg_iterations=s["cg_iterations"], cg_tolerance=s["cg_tolerance"],
-                                  rotation_iterations=s["rotation_iterations"])
+                                  rotation_iterations=s["rotation_iterations"],
+                                  rotation_stiffness=s["rotation_stiffness"])
 
     def rebuild(self, mesh, change) -> None:
         """Carry the model, state and control over ``change`` (which led to ``mesh``)."""

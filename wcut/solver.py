@@ -46,6 +46,12 @@ class SolverCorotational:
             gives 1e-5 m); the margin covers a state moved far from its last rotations, e.g. an
             object placed rotated by half a turn.
         rotation_tolerance: angle (rad) below which the polar iteration stops.
+        rotation_stiffness: add to the system matrix the stiffness of the rotation's variation
+            (``wcut.kernels.rotation.rotation_stiffness``), projected to its tension part, so
+            the Newton step uses the tangent of the corotational force instead of ``R K R^T``
+            alone. Without it the transverse stiffness of stretched elements is explicit: a
+            band stretched by 30% goes unstable above a step of a few ms. The force is the same
+            either way; False gives the thesis's (and SOFA's) ``R K R^T`` system.
 
     ``step`` allocates nothing: every array it touches is created here. The conjugate-gradient
     launches are recorded for the current ``dt``, ``model.rayleigh_stiffness`` and
@@ -53,7 +59,7 @@ class SolverCorotational:
     """
 
     def __init__(self, model: Model, *, cg_iterations: int = 20, cg_tolerance: float = 1.0e-6,
-                 rotation_iterations: int = 8, rotation_tolerance: float = 1.0e-6):
+                 rotation_iterations: int = 8, rotation_tolerance: float = 1.0e-6, rotation_stiffness: bool = True):
         for name, value in (("cg_iterations", cg_iterations), ("rotation_iterations", rotation_iterations)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= 100000:
                 raise SimulationError(f"{name} must be an integer in 1..100000, got {value!r}")
@@ -65,6 +71,7 @@ class SolverCorotational:
         self.cg_tolerance = float(cg_tolerance)
         self.rotation_iterations = int(rotation_iterations)
         self.rotation_tolerance = float(rotation_tolerance)
+        self.rotation_stiffness = bool(rotation_stiffness)
 
         n, d = model.particle_count, model.device
         vec = lambda: wp.zeros(n, dtype=wp.vec3, device=d)  # noqa: E731
@@ -77,6 +84,7 @@ class SolverCorotational:
         self._r, self._z, self._p, self._q = vec(), vec(), vec(), vec()
         self._elements = tet_p2 if model.tet_order == 2 else tet_p1  # the kernels of the element family
         self.tet_rotated_gradients = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33, device=d)
+        self.tet_rotation_stiffness = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33, device=d)  # V mu units
         self.tri_rotation = wp.zeros((model.tri_count, 3), dtype=tri_p2.mat32, device=d)
         self.tri_tension = wp.zeros((model.tri_count, 3), dtype=wp.mat22, device=d)  # A h sigma+ (N*m)
         self._rz = wp.zeros(self._cg_iterations + 1, dtype=float, device=d)
@@ -105,8 +113,10 @@ class SolverCorotational:
         return wp.launch(self._elements.tet_forces, m.tet_count, device=m.device, record_cmd=record,
                          inputs=[m.tet_indices, m.tet_poses, m.tet_stiffness, state_in.particle_q,
                                  state_in.particle_qd, self.dv, state_in.tet_rotation, dt + m.rayleigh_stiffness,
-                                 self.stiffness_scale(dt), self.rotation_iterations, self.rotation_tolerance],
-                         outputs=[state_out.tet_rotation, self.tet_rotated_gradients, self._force,
+                                 self.stiffness_scale(dt), self.rotation_iterations, self.rotation_tolerance,
+                                 int(self.rotation_stiffness)],
+                         outputs=[state_out.tet_rotation, self.tet_rotated_gradients, self.tet_rotation_stiffness,
+                                  self._force,
                                   self.particle_diagonal, self._q])
 
     def launch_shell_pass(self, state_in: State, dt: float) -> None:
@@ -136,7 +146,8 @@ class SolverCorotational:
         for k in range(self._cg_iterations):
             if m.tet_count:
                 cmds.append(wp.launch(self._elements.tet_matvec, m.tet_count, device=d, record_cmd=True,
-                                      inputs=[m.tet_indices, self.tet_rotated_gradients, m.tet_stiffness, p,
+                                      inputs=[m.tet_indices, self.tet_rotated_gradients,
+                                              self.tet_rotation_stiffness, m.tet_stiffness, p,
                                               stiffness_scale, k, rz, norms],
                                       outputs=[q]))
             if m.tri_count:

@@ -53,7 +53,8 @@ PARAMS_SCHEMA = {
     "springs": {"stiffness": (float, 1.0, 0.0, "N/m per feature"),
                 "margin": (float, 0.0, -1e-300, "m; 0: the detection's cut_point_radius")},
     "solver": {"substeps": (int, 1, 0, "implicit steps per frame"), "cg_iterations": (int, 30, 0, "1"),
-               "cg_tolerance": (float, 1.0e-6, -1e-300, "1")},
+               "cg_tolerance": (float, 1.0e-6, -1e-300, "1"),
+               "rotation_stiffness": (bool, True, None, "the tangent's rotation term (wcut.solver)")},
     "detection": {"radius": (float, 0.0, -1e-300, "m; 0: 2.5 times the mean feature spacing"),
                   "cut_point_radius": (float, 0.0, -1e-300, "m; 0: the model's mean edge length"),
                   "tau": (float, 7.0, 0.0, "1"), "min_outliers": (int, 3, 0, "pairs"),
@@ -103,6 +104,10 @@ class ArParams:
 
 
 def _checked(value, kind, bound, key: str, what: str):
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise CaptureError(f"{key}: expected true or false ({what}), got {value!r}")
+        return value
     if kind is str:
         if not isinstance(value, str) or (bound is not None and value not in bound):
             raise CaptureError(f"{key}: expected one of {', '.join(bound)}, got {value!r}")

@@ -186,7 +186,8 @@ class ArTracker:
         from ..solver import SolverCorotational
 
         s = self.params.solver
-        return SolverCorotational(self.model, cg_iterations=s["cg_iterations"], cg_tolerance=s["cg_tolerance"])
+        return SolverCorotational(self.model, cg_iterations=s["cg_iterations"], cg_tolerance=s["cg_tolerance"],
+                                  rotation_stiffness=s["rotation_stiffness"])
 
     # ------------------------------------------------------------------ per frame
     def features_on_model(self) -> np.ndarray:
