@@ -111,9 +111,10 @@ class CutPoint:
 class CutDetector:
     """The neighbour graph of the features and the cut polygon growing in it.
 
-    The measure of every pair is one launch of ``wcut.kernels.cut_detection.pair_measure``
+    The measure of every live pair is one launch of ``wcut.kernels.cut_detection.pair_measure``
     (recorded once, its inputs copied into arrays allocated once): the detection's cost per
-    frame is that launch and a threshold over the pairs.
+    frame is that launch and a threshold over the pairs. The live pairs are packed for the
+    kernel again only when the graph or the active features change.
 
     Args:
         rest_features: (F, 3) initial virtual features ``p^0`` (m), material points.
@@ -156,36 +157,71 @@ class CutDetector:
         from ..kernels import cut_detection
 
         d, P, F = self._device, len(self.pairs), len(self.rest_features)
-        self._pairs_wp = wp.array(self.pairs.astype(np.int32), dtype=wp.vec2i, device=d)
-        self._length_wp = wp.array(np.where(self.rest_length > 0, self.rest_length, 1.0), dtype=float, device=d)
-        self._alive_wp = wp.array(self.alive.astype(np.int32), dtype=wp.int32, device=d)
-        self._active_wp = wp.zeros(F, dtype=wp.int32, device=d)
-        self._current_wp = wp.zeros(F, dtype=wp.vec3, device=d)
-        self._target_wp = wp.zeros(F, dtype=wp.vec3, device=d)
+        self._pairs_wp = wp.zeros(P, dtype=wp.vec2i, device=d)
+        self._inverse_length_wp = wp.zeros(P, dtype=float, device=d)
+        self._count_wp = wp.zeros(1, dtype=wp.int32, device=d)
+        self._spring_wp = wp.zeros(F, dtype=wp.vec3, device=d)
+        self._spread_wp = wp.zeros(F, dtype=wp.vec3, device=d)
         self._mu_wp = wp.zeros(P, dtype=float, device=d)
-        self._sum_wp = wp.zeros(2, dtype=float, device=d)
+        self._sum_wp = wp.zeros(1, dtype=float, device=d)
         chunk = PAIRS_PER_THREAD if d.is_cpu else 1
-        self._launch = wp.launch(cut_detection.pair_measure, -(-P // chunk), device=d, record_cmd=True,
-                                 inputs=[self._pairs_wp, self._length_wp, self._alive_wp, self._active_wp,
-                                         self._current_wp, self._target_wp, int(self.params.measure == "target"),
-                                         chunk],
+        self._launch = wp.launch(cut_detection.pair_measure, max(-(-P // chunk), 1), device=d, record_cmd=True,
+                                 inputs=[self._pairs_wp, self._inverse_length_wp, self._count_wp, self._spring_wp,
+                                         self._spread_wp, chunk],
                                  outputs=[self._mu_wp, self._sum_wp])
-        # CPU arrays are shared with numpy: inputs are copied in and results read without a call
-        self._views = {id(a): a.numpy() for a in (self._alive_wp, self._active_wp, self._current_wp,
-                                                  self._target_wp, self._mu_wp, self._sum_wp)} if d.is_cpu else {}
+        # CPU arrays are shared with numpy: inputs are written in place and results read without a call
+        self._views = {id(a): a.numpy() for a in (self._pairs_wp, self._inverse_length_wp, self._count_wp,
+                                                  self._spring_wp, self._spread_wp, self._mu_wp,
+                                                  self._sum_wp)} if d.is_cpu else {}
+        self._live = np.zeros(0, dtype=np.int64)  # pair indices packed at the front of the kernel's arrays
+        self._live_key: tuple[bytes, bytes] | None = None  # (alive, active) they were packed for
+
+    def _pack_live(self, active: np.ndarray) -> None:
+        """Pack the live pairs (in the graph, both features active) at the front of the
+        kernel's pair arrays, when ``alive`` or ``active`` changed since the last packing (a
+        feature lost, a cut point: a few frames of a video)."""
+        key = (self.alive.tobytes(), active.tobytes())  # a few us; np.array_equal costs ten times more
+        if key == self._live_key:
+            return
+        self._live = np.flatnonzero(self.alive & active[self._l] & active[self._m])
+        n = len(self._live)
+        pairs = np.zeros((len(self.pairs), 2), dtype=np.int32)
+        pairs[:n] = self.pairs[self._live]
+        inverse = np.zeros(len(self.pairs), dtype=np.float32)
+        inverse[:n] = 1.0 / self.rest_length[self._live]
+        for array, value in ((self._pairs_wp, pairs), (self._inverse_length_wp, inverse),
+                             (self._count_wp, np.array([n]))):
+            self._copy_in(array, value)
+        self._live_key = key
+
+    def _measure_live(self, current, target, active) -> tuple[np.ndarray, float]:
+        """``(mu, mean)``: the measure of the live pairs ``self._live`` (n,), a view valid
+        until the next call, and its mean (0 without live pair)."""
+        current = np.asarray(current, dtype=np.float64).reshape(-1, 3)
+        target = np.asarray(target, dtype=np.float64).reshape(-1, 3)
+        self._pack_live(np.asarray(active, dtype=bool).reshape(-1))
+        n = len(self._live)
+        if n == 0:
+            return np.zeros(0, dtype=np.float32), 0.0
+        self._copy_in(self._spring_wp, current - target)
+        self._copy_in(self._spread_wp, target if self.params.measure == "target" else current)
+        total = self._views.get(id(self._sum_wp))
+        if total is not None:  # zero_() costs some 20 us on the CPU, a store through the view nothing
+            total[0] = 0.0
+        else:
+            self._sum_wp.zero_()
+        self._launch.launch()
+        return self._read(self._mu_wp)[:n], float(self._read(self._sum_wp)[0]) / n
 
     def measure(self, current, target, active) -> tuple[np.ndarray, int, float]:
         """``(mu, live, mean)``: the measure of eq. 7.11 for every pair (P,), -1 where it is not
         defined (out of the graph, or a feature not active); the number of live pairs and their
         mean measure. ``current`` (F, 3) are the features on the model ``p^t``, ``target``
         (F, 3) their targets ``p^1`` (m), ``active`` (F,) bool."""
-        for array, value in ((self._current_wp, current), (self._target_wp, target), (self._active_wp, active)):
-            self._copy_in(array, value)
-        self._sum_wp.zero_()
-        if len(self.pairs):
-            self._launch.launch()
-        total, count = self._read(self._sum_wp)
-        return self._read(self._mu_wp), int(count), float(total / count) if count else 0.0
+        live, mean = self._measure_live(current, target, active)
+        mu = np.full(len(self.pairs), -1.0, dtype=np.float32)
+        mu[self._live] = live
+        return mu, len(self._live), mean
 
     def _copy_in(self, array: wp.array, value) -> None:
         """Copy a numpy array into a Warp array: in place through the shared view on the CPU
@@ -194,7 +230,8 @@ class CutDetector:
         if view is not None:
             np.copyto(view, np.asarray(value).reshape(view.shape), casting="unsafe")
         else:
-            array.assign(np.asarray(value, dtype=np.float32 if array.dtype == wp.vec3 else np.int32))
+            dtype = {wp.vec3: np.float32, wp.vec2i: np.int32, wp.int32: np.int32}.get(array.dtype, np.float32)
+            array.assign(np.asarray(value, dtype=dtype))
 
     def _read(self, array: wp.array) -> np.ndarray:
         view = self._views.get(id(array))
@@ -208,16 +245,13 @@ class CutDetector:
             target: (F, 3) their targets ``p^1`` (m).
             active: (F,) bool, features still tracked and pulling.
         """
-        mu, count, self.last_mean = self.measure(current, target, active)
-        self.last_outliers = 0
-        if count == 0:
-            return None
+        mu, self.last_mean = self._measure_live(current, target, active)
         outlier = mu > max(self.params.tau * self.last_mean, self.params.min_measure)
         self.last_outliers = int(np.count_nonzero(outlier))
         if self.last_outliers < self.params.min_outliers:
             return None
-        index = np.flatnonzero(outlier)
-        weight, mid = mu[index], self._midpoints[index]
+        outlier = np.flatnonzero(outlier)
+        weight, mid = mu[outlier].astype(np.float64), self._midpoints[self._live[outlier]]
         strongest = mid[np.argmax(weight)]
         reach = self.params.cluster_radius or 2.0 * self.params.cut_point_radius
         near = np.linalg.norm(mid - strongest, axis=1) <= reach
@@ -228,13 +262,18 @@ class CutDetector:
         return self._extend(point, int(near.sum()))
 
     def _remove_pairs_near(self, point: np.ndarray) -> None:
-        """Remove the pairs whose segment (rest) passes within ``cut_point_radius`` of ``point``."""
-        a, b = self.rest_features[self._l], self.rest_features[self._m]
+        """Remove the pairs whose segment (rest) passes within ``cut_point_radius`` of ``point``.
+
+        Only pairs whose midpoint lies within ``cut_point_radius + radius / 2`` can (a pair is
+        at most ``radius`` long); the exact segment distance is computed for those."""
+        r = self.params.cut_point_radius
+        offset = self._midpoints - point
+        near = np.flatnonzero(self.alive & (np.einsum("pi,pi->p", offset, offset) < (r + 0.5 * self.params.radius) ** 2))
+        a, b = self.rest_features[self._l[near]], self.rest_features[self._m[near]]
         ab = b - a
         s = np.clip(np.einsum("pi,pi->p", point - a, ab) / np.maximum(np.einsum("pi,pi->p", ab, ab), 1e-300), 0, 1)
         gap = np.linalg.norm(a + s[:, None] * ab - point, axis=1)
-        self.alive &= gap >= self.params.cut_point_radius
-        self._copy_in(self._alive_wp, self.alive)
+        self.alive[near[gap < r]] = False
 
     def _extend(self, point: np.ndarray, outliers: int) -> CutPoint:
         """Put ``point`` at the nearest polygon end within ``join_radius`` (figure 7.7, middle)
