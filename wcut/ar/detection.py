@@ -142,6 +142,7 @@ class CutDetector:
         keep = self.rest_length > 0  # coincident features would divide by zero in eq. 7.10
         self.alive = keep.copy()
         self._midpoints = 0.5 * (p0[self._l] + p0[self._m])
+        self._midpoint_tree = cKDTree(self._midpoints)
         self._device = wp.get_device(device)
         self._setup_kernel()
         self.polygons: list[np.ndarray] = []
@@ -254,7 +255,8 @@ class CutDetector:
         weight, mid = mu[outlier].astype(np.float64), self._midpoints[self._live[outlier]]
         strongest = mid[np.argmax(weight)]
         reach = self.params.cluster_radius or 2.0 * self.params.cut_point_radius
-        near = np.linalg.norm(mid - strongest, axis=1) <= reach
+        offset = mid - strongest
+        near = np.einsum("ki,ki->k", offset, offset) <= reach * reach
         if near.sum() < self.params.min_outliers:
             return None
         point = (weight[near, None] * mid[near]).sum(axis=0) / weight[near].sum()
@@ -265,10 +267,11 @@ class CutDetector:
         """Remove the pairs whose segment (rest) passes within ``cut_point_radius`` of ``point``.
 
         Only pairs whose midpoint lies within ``cut_point_radius + radius / 2`` can (a pair is
-        at most ``radius`` long); the exact segment distance is computed for those."""
+        at most ``radius`` long): a k-d tree of the midpoints finds them, and the exact segment
+        distance is computed for those."""
         r = self.params.cut_point_radius
-        offset = self._midpoints - point
-        near = np.flatnonzero(self.alive & (np.einsum("pi,pi->p", offset, offset) < (r + 0.5 * self.params.radius) ** 2))
+        near = np.asarray(self._midpoint_tree.query_ball_point(point, r + 0.5 * self.params.radius), dtype=np.int64)
+        near = near[self.alive[near]]
         a, b = self.rest_features[self._l[near]], self.rest_features[self._m[near]]
         ab = b - a
         s = np.clip(np.einsum("pi,pi->p", point - a, ab) / np.maximum(np.einsum("pi,pi->p", ab, ab), 1e-300), 0, 1)
