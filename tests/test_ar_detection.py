@@ -40,7 +40,7 @@ def reference_measure(p0, pairs, current, target, active, alive, variant):
 def test_kernel_measure_equals_the_numpy_reference(variant):
     rng = np.random.default_rng(1)
     p0 = rng.uniform(0.0, 0.05, (300, 3))
-    det = CutDetector(p0, DetectionParams(radius=0.01, cut_point_radius=0.004, measure=variant))
+    det = CutDetector(p0, DetectionParams(radius=0.01, cut_point_radius=0.004, measure=variant, tau=2.0))
     current = p0 + rng.normal(0, 1e-3, p0.shape)
     target = p0 + rng.normal(0, 1e-3, p0.shape)
     active = rng.uniform(size=len(p0)) > 0.1
@@ -52,6 +52,15 @@ def test_kernel_measure_equals_the_numpy_reference(variant):
     np.testing.assert_allclose(mu, expected, rtol=1e-4, atol=1e-9)
     assert count == int((expected >= 0).sum())
     assert mean == pytest.approx(expected[expected >= 0].mean(), rel=1e-4)
+    det.update(current, target, active)  # the outliers are counted by a kernel of the same launch
+    threshold = max(det.params.tau * mean, det.params.min_measure)
+    assert abs(det.last_outliers - int((expected > threshold).sum())) <= int((abs(expected - threshold) < 1e-6).sum())
+    assert det.last_outliers > 0
+    active = active & (rng.uniform(size=len(p0)) > 0.2)  # features lost: their pairs leave in place
+    mu, count, mean = det.measure(current, target, active)
+    expected = reference_measure(p0, det.pairs, current, target, active, det.alive, variant)
+    np.testing.assert_allclose(mu, expected, rtol=1e-4, atol=1e-9)
+    assert count == int((expected >= 0).sum()) and mean == pytest.approx(expected[expected >= 0].mean(), rel=1e-4)
 
 
 def test_neighbour_graph_is_every_pair_within_the_radius():
@@ -115,8 +124,13 @@ def test_pairs_through_the_sphere_around_a_cut_point_leave_the_graph():
     gap = np.linalg.norm(a + t[:, None] * (b - a) - found.point, axis=1)
     assert removed.any()
     np.testing.assert_array_equal(removed, before & (gap < det.params.cut_point_radius))
-    mu, _, _ = det.measure(*opened(p0, 0.0525, 0.06, 0.01), np.ones(len(p0), bool))
+    current, target = opened(p0, 0.0525, 0.06, 0.01)
+    active = np.ones(len(p0), bool)
+    mu, count, mean = det.measure(current, target, active)  # removed from the packed pairs in place
     assert (mu[removed] == -1.0).all()
+    expected = reference_measure(p0, det.pairs, current, target, active, det.alive, "target")
+    np.testing.assert_allclose(mu, expected, rtol=1e-4, atol=1e-7)  # float32 positions of 0.1 m: 1e-8 m
+    assert count == int((expected >= 0).sum()) and mean == pytest.approx(expected[expected >= 0].mean(), rel=1e-4)
 
 
 def test_a_point_grows_the_nearest_end_or_starts_a_new_polygon():

@@ -34,8 +34,6 @@ from ..errors import WcutError
 #: the two variants of eq. 7.10: ``target`` is delta^1 / delta^0 ([82], the image alone),
 #: ``current`` is delta^t / delta^0 ([78], smoothed by the model)
 MEASURES = ("target", "current")
-#: pairs one thread of the measure kernel handles on the CPU
-PAIRS_PER_THREAD = 64
 
 
 @dataclass(frozen=True)
@@ -111,10 +109,11 @@ class CutPoint:
 class CutDetector:
     """The neighbour graph of the features and the cut polygon growing in it.
 
-    The measure of every live pair is one launch of ``wcut.kernels.cut_detection.pair_measure``
-    (recorded once, its inputs copied into arrays allocated once): the detection's cost per
-    frame is that launch and a threshold over the pairs. The live pairs are packed for the
-    kernel again only when the graph or the active features change.
+    The measure of every live pair, its mean and the outlier count are one captured graph of
+    the kernels of ``wcut.kernels.cut_detection`` (its inputs copied into arrays allocated
+    once): the detection's cost per frame is two copies, that graph's replay and a read. The
+    live pairs are packed for the kernels again only when the graph or the active features
+    change.
 
     Args:
         rest_features: (F, 3) initial virtual features ``p^0`` (m), material points.
@@ -155,74 +154,135 @@ class CutDetector:
         return int(self.alive.sum())
 
     def _setup_kernel(self) -> None:
-        from ..kernels import cut_detection
+        from ..kernels import cut_detection as k
 
         d, P, F = self._device, len(self.pairs), len(self.rest_features)
-        self._pairs_wp = wp.zeros(P, dtype=wp.vec2i, device=d)
+        self._pair_start_wp = wp.zeros(F + 1, dtype=wp.int32, device=d)
+        self._pair_other_wp = wp.zeros(P, dtype=wp.int32, device=d)
         self._inverse_length_wp = wp.zeros(P, dtype=float, device=d)
-        self._count_wp = wp.zeros(1, dtype=wp.int32, device=d)
-        self._spring_wp = wp.zeros(F, dtype=wp.vec3, device=d)
-        self._spread_wp = wp.zeros(F, dtype=wp.vec3, device=d)
+        self._count_wp = wp.zeros(1, dtype=wp.int32, device=d)  # packed pairs
+        self._measured_wp = wp.zeros(1, dtype=wp.int32, device=d)  # of which not removed since the packing
+        self._current_wp = wp.zeros(F, dtype=wp.vec3, device=d)
+        self._target_wp = wp.zeros(F, dtype=wp.vec3, device=d)
+        spring, spread = wp.zeros(F, dtype=wp.vec3, device=d), wp.zeros(F, dtype=wp.vec3, device=d)
         self._mu_wp = wp.zeros(P, dtype=float, device=d)
         self._sum_wp = wp.zeros(1, dtype=float, device=d)
-        chunk = PAIRS_PER_THREAD if d.is_cpu else 1
-        self._launch = wp.launch(cut_detection.pair_measure, max(-(-P // chunk), 1), device=d, record_cmd=True,
-                                 inputs=[self._pairs_wp, self._inverse_length_wp, self._count_wp, self._spring_wp,
-                                         self._spread_wp, chunk],
-                                 outputs=[self._mu_wp, self._sum_wp])
+        self._midpoint_wp = wp.zeros(P, dtype=wp.vec3, device=d)
+        self._threshold_wp = wp.zeros(1, dtype=float, device=d)
+        self._outliers_wp = wp.zeros(1, dtype=wp.int32, device=d)
+        largest, strongest = wp.zeros(1, dtype=float, device=d), wp.zeros(1, dtype=wp.int32, device=d)
+        self._cluster_sum_wp = wp.zeros(1, dtype=wp.vec4, device=d)
+        self._cluster_count_wp = wp.zeros(1, dtype=wp.int32, device=d)
+        chunk = max(P, 1) if d.is_cpu else 1  # the CPU runs a launch's threads in turn: one thread, one pass
+        threads, p = max(-(-P // chunk), 1), self.params
+        reach = p.cluster_radius or 2.0 * p.cut_point_radius
+        # one graph per frame: on the CPU its replay costs about a microsecond of Python, against
+        # some 5 us per recorded launch and more per numpy call when the loop has cooled the caches
+        with wp.ScopedCapture(device=d) as capture:
+            for array in (self._sum_wp, self._outliers_wp, largest, self._cluster_sum_wp, self._cluster_count_wp):
+                array.zero_()
+            strongest.fill_(P)
+            wp.launch(k.feature_motion, F, device=d, inputs=[self._current_wp, self._target_wp,
+                                                             int(p.measure == "target")],
+                      outputs=[spring, spread])
+            rows = max(F, 1) if d.is_cpu else 1
+            wp.launch(k.pair_measure, max(-(-F // rows), 1), device=d,
+                      inputs=[self._pair_start_wp, self._pair_other_wp, self._inverse_length_wp, spring, spread, rows],
+                      outputs=[self._mu_wp, self._sum_wp])
+            wp.launch(k.count_outliers, threads, device=d,
+                      inputs=[self._mu_wp, self._count_wp, self._measured_wp, self._sum_wp, p.tau, p.min_measure,
+                              chunk],
+                      outputs=[self._threshold_wp, self._outliers_wp])
+            wp.launch(k.strongest_outlier, threads, device=d,
+                      inputs=[self._mu_wp, self._count_wp, self._threshold_wp, self._outliers_wp, p.min_outliers,
+                              chunk], outputs=[largest])
+            wp.launch(k.first_strongest, threads, device=d,
+                      inputs=[self._mu_wp, self._count_wp, self._outliers_wp, largest, p.min_outliers, chunk],
+                      outputs=[strongest])
+            wp.launch(k.outlier_cluster, threads, device=d,
+                      inputs=[self._mu_wp, self._midpoint_wp, self._count_wp, self._threshold_wp, self._outliers_wp,
+                              strongest, p.min_outliers, reach, chunk],
+                      outputs=[self._cluster_sum_wp, self._cluster_count_wp])
+        self._graph = capture.graph
         # CPU arrays are shared with numpy: inputs are written in place and results read without a call
-        self._views = {id(a): a.numpy() for a in (self._pairs_wp, self._inverse_length_wp, self._count_wp,
-                                                  self._spring_wp, self._spread_wp, self._mu_wp,
-                                                  self._sum_wp)} if d.is_cpu else {}
+        self._views = {id(a): a.numpy() for a in (self._pair_start_wp, self._pair_other_wp,
+                                                  self._inverse_length_wp, self._count_wp, self._measured_wp,
+                                                  self._current_wp, self._target_wp, self._mu_wp, self._sum_wp,
+                                                  self._midpoint_wp, self._threshold_wp, self._outliers_wp,
+                                                  self._cluster_sum_wp, self._cluster_count_wp)} if d.is_cpu else {}
         self._live = np.zeros(0, dtype=np.int64)  # pair indices packed at the front of the kernel's arrays
+        self._slot = np.full(P, -1, dtype=np.int64)  # pair -> its packed index, -1 if not packed or removed since
+        self._inverse = np.zeros(P, dtype=np.float32)  # the packed 1 / delta^0, 0 for removed pairs
+        self._measured = 0  # packed pairs not removed since
+        self._active = np.zeros(F, dtype=bool)  # the features they were packed for
+        # the pairs of each feature (as l or m): incident[incident_start[f]:incident_start[f + 1]]
+        ends = np.concatenate([self._l, self._m])
+        order = np.argsort(ends, kind="stable")
+        self._incident, self._incident_start = order % max(P, 1), np.searchsorted(ends[order], np.arange(F + 1))
         self._live_key: tuple[bytes, bytes] | None = None  # (alive, active) they were packed for
 
     def _pack_live(self, active: np.ndarray) -> None:
         """Pack the live pairs (in the graph, both features active) at the front of the
-        kernel's pair arrays, when ``alive`` or ``active`` changed since the last packing (a
-        feature lost, a cut point: a few frames of a video)."""
+        kernel's pair arrays when they changed since the last packing. Pairs that only left
+        (features dropped, pairs removed around a cut point: every change of a video but the
+        first frame's) are taken out in place by :meth:`_drop_pairs`; the rest packs again."""
         key = (self.alive.tobytes(), active.tobytes())  # a few us; np.array_equal costs ten times more
         if key == self._live_key:
             return
-        self._live = np.flatnonzero(self.alive & active[self._l] & active[self._m])
-        n = len(self._live)
-        pairs = np.zeros((len(self.pairs), 2), dtype=np.int32)
-        pairs[:n] = self.pairs[self._live]
-        inverse = np.zeros(len(self.pairs), dtype=np.float32)
-        inverse[:n] = 1.0 / self.rest_length[self._live]
-        for array, value in ((self._pairs_wp, pairs), (self._inverse_length_wp, inverse),
-                             (self._count_wp, np.array([n]))):
-            self._copy_in(array, value)
-        self._live_key = key
-
-    def _measure_live(self, current, target, active) -> tuple[np.ndarray, float]:
-        """``(mu, mean)``: the measure of the live pairs ``self._live`` (n,), a view valid
-        until the next call, and its mean (0 without live pair)."""
-        current = np.asarray(current, dtype=np.float64).reshape(-1, 3)
-        target = np.asarray(target, dtype=np.float64).reshape(-1, 3)
-        self._pack_live(np.asarray(active, dtype=bool).reshape(-1))
-        n = len(self._live)
-        if n == 0:
-            return np.zeros(0, dtype=np.float32), 0.0
-        self._copy_in(self._spring_wp, current - target)
-        self._copy_in(self._spread_wp, target if self.params.measure == "target" else current)
-        total = self._views.get(id(self._sum_wp))
-        if total is not None:  # zero_() costs some 20 us on the CPU, a store through the view nothing
-            total[0] = 0.0
+        if self._live_key is not None and key[0] == self._live_key[0] and not (active & ~self._active).any():
+            dropped = np.flatnonzero(self._active & ~active)
+            self._drop_pairs(np.concatenate([np.zeros(0, dtype=np.int64)] + [
+                self._incident[self._incident_start[f]:self._incident_start[f + 1]] for f in dropped]))
         else:
-            self._sum_wp.zero_()
-        self._launch.launch()
-        return self._read(self._mu_wp)[:n], float(self._read(self._sum_wp)[0]) / n
+            self._live = np.flatnonzero(self.alive & active[self._l] & active[self._m])
+            n = self._measured = len(self._live)
+            self._slot[:] = -1
+            self._slot[self._live] = np.arange(n)
+            other = np.zeros(len(self.pairs), dtype=np.int32)
+            other[:n] = self._m[self._live]
+            start = np.searchsorted(self._l[self._live], np.arange(len(self.rest_features) + 1))  # sorted by l
+            self._inverse[:] = 0.0
+            self._inverse[:n] = 1.0 / self.rest_length[self._live]
+            midpoints = np.zeros((len(self.pairs), 3), dtype=np.float32)
+            midpoints[:n] = self._midpoints[self._live]
+            for array, value in ((self._pair_start_wp, start), (self._pair_other_wp, other),
+                                 (self._inverse_length_wp, self._inverse), (self._midpoint_wp, midpoints),
+                                 (self._count_wp, np.array([n])), (self._measured_wp, np.array([n]))):
+                self._copy_in(array, value)
+        self._live_key, self._active = key, active.copy()
+
+    def _drop_pairs(self, pairs: np.ndarray) -> None:
+        """Take pairs out of the packed ones in place: their ``1 / delta^0`` becomes 0, so
+        they measure 0, and the mean's count drops."""
+        slots = self._slot[pairs]
+        slots = np.unique(slots[slots >= 0])  # a pair of two dropped features comes twice
+        if len(slots):
+            self._slot[pairs] = -1
+            self._inverse[slots] = 0.0
+            self._measured -= len(slots)
+            self._copy_in(self._inverse_length_wp, self._inverse)
+            self._copy_in(self._measured_wp, np.array([self._measured]))
+
+    def _measure_live(self, current, target, active) -> int:
+        """Run the measure and the outlier count on the live pairs ``self._live`` for these
+        features; returns their number."""
+        self._pack_live(np.asarray(active, dtype=bool).reshape(-1))
+        if self._measured:
+            self._copy_in(self._current_wp, current)
+            self._copy_in(self._target_wp, target)
+            wp.capture_launch(self._graph)
+        return self._measured
 
     def measure(self, current, target, active) -> tuple[np.ndarray, int, float]:
         """``(mu, live, mean)``: the measure of eq. 7.11 for every pair (P,), -1 where it is not
         defined (out of the graph, or a feature not active); the number of live pairs and their
         mean measure. ``current`` (F, 3) are the features on the model ``p^t``, ``target``
         (F, 3) their targets ``p^1`` (m), ``active`` (F,) bool."""
-        live, mean = self._measure_live(current, target, active)
+        n = self._measure_live(current, target, active)
         mu = np.full(len(self.pairs), -1.0, dtype=np.float32)
-        mu[self._live] = live
-        return mu, len(self._live), mean
+        packed = self._slot >= 0
+        mu[packed] = self._read(self._mu_wp)[self._slot[packed]]
+        return mu, n, float(self._read(self._sum_wp)[0]) / n if n else 0.0
 
     def _copy_in(self, array: wp.array, value) -> None:
         """Copy a numpy array into a Warp array: in place through the shared view on the CPU
@@ -231,7 +291,7 @@ class CutDetector:
         if view is not None:
             np.copyto(view, np.asarray(value).reshape(view.shape), casting="unsafe")
         else:
-            dtype = {wp.vec3: np.float32, wp.vec2i: np.int32, wp.int32: np.int32}.get(array.dtype, np.float32)
+            dtype = {wp.vec3: np.float32, wp.int32: np.int32}.get(array.dtype, np.float32)
             array.assign(np.asarray(value, dtype=dtype))
 
     def _read(self, array: wp.array) -> np.ndarray:
@@ -241,27 +301,29 @@ class CutDetector:
     def update(self, current, target, active) -> CutPoint | None:
         """One detection step: the new cut point, or None.
 
+        The measure, its mean, the outliers and their cluster around the strongest one are one
+        graph launch; Python reads a few numbers, and works only when a cut point is put.
+
         Args:
             current: (F, 3) features on the model ``p^t`` (m).
             target: (F, 3) their targets ``p^1`` (m).
             active: (F,) bool, features still tracked and pulling.
         """
-        mu, self.last_mean = self._measure_live(current, target, active)
-        outlier = mu > max(self.params.tau * self.last_mean, self.params.min_measure)
-        self.last_outliers = int(np.count_nonzero(outlier))
+        n = self._measure_live(current, target, active)
+        if n == 0:
+            self.last_mean, self.last_outliers = 0.0, 0
+            return None
+        self.last_mean = float(self._read(self._sum_wp)[0]) / n
+        self.last_outliers = int(self._read(self._outliers_wp)[0])
         if self.last_outliers < self.params.min_outliers:
             return None
-        outlier = np.flatnonzero(outlier)
-        weight, mid = mu[outlier].astype(np.float64), self._midpoints[self._live[outlier]]
-        strongest = mid[np.argmax(weight)]
-        reach = self.params.cluster_radius or 2.0 * self.params.cut_point_radius
-        offset = mid - strongest
-        near = np.einsum("ki,ki->k", offset, offset) <= reach * reach
-        if near.sum() < self.params.min_outliers:
+        near = int(self._read(self._cluster_count_wp)[0])
+        if near < self.params.min_outliers:
             return None
-        point = (weight[near, None] * mid[near]).sum(axis=0) / weight[near].sum()
+        weighted = self._read(self._cluster_sum_wp)[0].astype(np.float64)
+        point = weighted[:3] / weighted[3]
         self._remove_pairs_near(point)
-        return self._extend(point, int(near.sum()))
+        return self._extend(point, near)
 
     def _remove_pairs_near(self, point: np.ndarray) -> None:
         """Remove the pairs whose segment (rest) passes within ``cut_point_radius`` of ``point``.
@@ -276,7 +338,11 @@ class CutDetector:
         ab = b - a
         s = np.clip(np.einsum("pi,pi->p", point - a, ab) / np.maximum(np.einsum("pi,pi->p", ab, ab), 1e-300), 0, 1)
         gap = np.linalg.norm(a + s[:, None] * ab - point, axis=1)
-        self.alive[near[gap < r]] = False
+        gone = near[gap < r]
+        self.alive[gone] = False
+        self._drop_pairs(gone)
+        if self._live_key is not None:
+            self._live_key = (self.alive.tobytes(), self._live_key[1])
 
     def _extend(self, point: np.ndarray, outliers: int) -> CutPoint:
         """Put ``point`` at the nearest polygon end within ``join_radius`` (figure 7.7, middle)
