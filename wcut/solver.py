@@ -21,6 +21,8 @@ plain atomic sums fused into the vector updates.
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 import warp as wp
 
@@ -101,7 +103,7 @@ class SolverCorotational:
         self._cg_commands: list = []
         self.graph_capture = bool(graph_capture)
         self._graphs: dict = {}  # capture key -> (graph, the objects whose ids the key holds)
-        self._seen: set = set()  # keys stepped once: the next step with one captures it
+        self._seen: deque = deque(maxlen=2 * GRAPH_CACHE_SIZE)  # keys stepped lately: their next step captures
 
     @property
     def cg_iterations(self) -> int:
@@ -225,29 +227,31 @@ class SolverCorotational:
         if not self.graph_capture:
             self._launch_step(state_in, state_out, control, dt)
             return
-        key = self._capture_key(state_in, state_out, control, dt)
+        key, held = self._capture_key(state_in, state_out, control, dt)
         graph = self._graphs.get(key)
         if graph is None and key in self._seen:
             with wp.ScopedCapture(device=m.device) as capture:
                 self._launch_step(state_in, state_out, control, dt)
             if len(self._graphs) >= GRAPH_CACHE_SIZE:
                 self._graphs.pop(next(iter(self._graphs)))
-            graph = self._graphs[key] = (capture.graph, (state_in, state_out, control))  # keeps the ids alive
+            graph = self._graphs[key] = (capture.graph, held)  # held alive, their ids stay theirs
         if graph is None:
-            self._seen.add(key)
+            self._seen.append(key)
             self._launch_step(state_in, state_out, control, dt)
         else:
             wp.capture_launch(graph[0])
 
     def _capture_key(self, state_in: State, state_out: State, control: Control | None, dt: float) -> tuple:
-        """What a captured step depends on: its arrays (by identity) and every value passed by value."""
+        """``(key, held)``: what a captured step depends on, its arrays by identity and every
+        value passed by value, and the arrays themselves (a cached graph keeps them alive, so
+        that a later array cannot take one's id)."""
         m = self.model
-        arrays = (state_in.particle_q, state_in.particle_qd, state_in.particle_f, state_in.tet_rotation,
-                  state_out.particle_q, state_out.particle_qd, state_out.tet_rotation,
-                  None if control is None else control.attachment_target)
-        return (tuple(id(a) for a in arrays), id(state_in), id(state_out), id(control), dt, m.rayleigh_stiffness,
-                m.rayleigh_mass, tuple(m.gravity), self.cg_tolerance, self.rotation_iterations,
-                self.rotation_tolerance, self.rotation_stiffness)
+        held = (state_in.particle_q, state_in.particle_qd, state_in.particle_f, state_in.tet_rotation,
+                state_out.particle_q, state_out.particle_qd, state_out.tet_rotation,
+                None if control is None else control.attachment_target)
+        key = (tuple(id(a) for a in held), dt, m.rayleigh_stiffness, m.rayleigh_mass, tuple(m.gravity),
+               self.cg_tolerance, self.rotation_iterations, self.rotation_tolerance, self.rotation_stiffness)
+        return key, held
 
     def _launch_step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """The launches of one step (see the module's docstring)."""

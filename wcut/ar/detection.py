@@ -210,15 +210,10 @@ class CutDetector:
                                                   self._current_wp, self._target_wp, self._mu_wp, self._sum_wp,
                                                   self._midpoint_wp, self._threshold_wp, self._outliers_wp,
                                                   self._cluster_sum_wp, self._cluster_count_wp)} if d.is_cpu else {}
-        self._live = np.zeros(0, dtype=np.int64)  # pair indices packed at the front of the kernel's arrays
         self._slot = np.full(P, -1, dtype=np.int64)  # pair -> its packed index, -1 if not packed or removed since
         self._inverse = np.zeros(P, dtype=np.float32)  # the packed 1 / delta^0, 0 for removed pairs
         self._measured = 0  # packed pairs not removed since
         self._active = np.zeros(F, dtype=bool)  # the features they were packed for
-        # the pairs of each feature (as l or m): incident[incident_start[f]:incident_start[f + 1]]
-        ends = np.concatenate([self._l, self._m])
-        order = np.argsort(ends, kind="stable")
-        self._incident, self._incident_start = order % max(P, 1), np.searchsorted(ends[order], np.arange(F + 1))
         self._live_key: tuple[bytes, bytes] | None = None  # (alive, active) they were packed for
 
     def _pack_live(self, active: np.ndarray) -> None:
@@ -230,21 +225,20 @@ class CutDetector:
         if key == self._live_key:
             return
         if self._live_key is not None and key[0] == self._live_key[0] and not (active & ~self._active).any():
-            dropped = np.flatnonzero(self._active & ~active)
-            self._drop_pairs(np.concatenate([np.zeros(0, dtype=np.int64)] + [
-                self._incident[self._incident_start[f]:self._incident_start[f + 1]] for f in dropped]))
+            dropped = self._active & ~active
+            self._drop_pairs(np.flatnonzero(dropped[self._l] | dropped[self._m]))
         else:
-            self._live = np.flatnonzero(self.alive & active[self._l] & active[self._m])
-            n = self._measured = len(self._live)
+            live = np.flatnonzero(self.alive & active[self._l] & active[self._m])
+            n = self._measured = len(live)
             self._slot[:] = -1
-            self._slot[self._live] = np.arange(n)
+            self._slot[live] = np.arange(n)
             other = np.zeros(len(self.pairs), dtype=np.int32)
-            other[:n] = self._m[self._live]
-            start = np.searchsorted(self._l[self._live], np.arange(len(self.rest_features) + 1))  # sorted by l
+            other[:n] = self._m[live]
+            start = np.searchsorted(self._l[live], np.arange(len(self.rest_features) + 1))  # pairs sorted by l
             self._inverse[:] = 0.0
-            self._inverse[:n] = 1.0 / self.rest_length[self._live]
+            self._inverse[:n] = 1.0 / self.rest_length[live]
             midpoints = np.zeros((len(self.pairs), 3), dtype=np.float32)
-            midpoints[:n] = self._midpoints[self._live]
+            midpoints[:n] = self._midpoints[live]
             for array, value in ((self._pair_start_wp, start), (self._pair_other_wp, other),
                                  (self._inverse_length_wp, self._inverse), (self._midpoint_wp, midpoints),
                                  (self._count_wp, np.array([n])), (self._measured_wp, np.array([n]))):
@@ -255,7 +249,7 @@ class CutDetector:
         """Take pairs out of the packed ones in place: their ``1 / delta^0`` becomes 0, so
         they measure 0, and the mean's count drops."""
         slots = self._slot[pairs]
-        slots = np.unique(slots[slots >= 0])  # a pair of two dropped features comes twice
+        slots = slots[slots >= 0]
         if len(slots):
             self._slot[pairs] = -1
             self._inverse[slots] = 0.0
@@ -264,8 +258,8 @@ class CutDetector:
             self._copy_in(self._measured_wp, np.array([self._measured]))
 
     def _measure_live(self, current, target, active) -> int:
-        """Run the measure and the outlier count on the live pairs ``self._live`` for these
-        features; returns their number."""
+        """Run the measure and the outlier count on the live pairs for these features;
+        returns their number."""
         self._pack_live(np.asarray(active, dtype=bool).reshape(-1))
         if self._measured:
             self._copy_in(self._current_wp, current)
