@@ -4,10 +4,10 @@ For a pair (l, m) of features with spring vectors ``d = p^t - p^1``:
 ``mu_lm = |d_l - d_m| * |q_l - q_m| / delta^0_lm`` where ``q`` is the target ``p^1`` or the
 current ``p^t`` (the two variants of eq. 7.10). The live pairs (in the graph, both features
 pulling) are packed at the front of the pair arrays by the caller, grouped by their first
-feature, so the pair loop has no branch. The kernels run in this order, as one captured graph: :func:`feature_motion`,
-:func:`pair_measure`, :func:`count_outliers`, then, once there are enough outliers, the
-cluster around the strongest one: :func:`strongest_outlier`, :func:`first_strongest`,
-:func:`outlier_cluster`.
+feature, so the pair loop has no branch. The kernels run in this order, as one captured
+graph: :func:`pair_measure`, :func:`count_outliers` (with the largest outlier), then, once
+there are enough outliers, the cluster around the strongest one: :func:`first_strongest`,
+:func:`outlier_cluster`. :func:`pairs_near_point` finds the pairs a new cut point removes.
 
 Each thread handles a run of ``chunk`` consecutive pairs (or features) and adds its partial
 sums once: on the CPU a launch runs its threads one after another, and the caller gives one
@@ -18,56 +18,49 @@ import warp as wp
 
 
 @wp.kernel
-def feature_motion(
-    feature_current: wp.array(dtype=wp.vec3),
-    feature_target: wp.array(dtype=wp.vec3),
-    use_target: int,
-    feature_spring: wp.array(dtype=wp.vec3),
-    feature_spread: wp.array(dtype=wp.vec3),
-):
-    """Per feature: the spring vector ``d = p^t - p^1`` (m) and the position ``q`` whose
-    spread the measure uses (m): the target if ``use_target``, else the current position."""
-    f = wp.tid()
-    current = feature_current[f]
-    target = feature_target[f]
-    feature_spring[f] = current - target
-    if use_target != 0:
-        feature_spread[f] = target
-    else:
-        feature_spread[f] = current
-
-
-@wp.kernel
 def pair_measure(
     feature_pair_start: wp.array(dtype=wp.int32),
     pair_other: wp.array(dtype=wp.int32),
     pair_inverse_rest_length: wp.array(dtype=float),
-    feature_spring: wp.array(dtype=wp.vec3),
-    feature_spread: wp.array(dtype=wp.vec3),
+    feature_current: wp.array(dtype=wp.vec3),
+    feature_target: wp.array(dtype=wp.vec3),
+    use_target: int,
     features_per_thread: int,
     pair_measure_out: wp.array(dtype=float),
     measure_sum: wp.array(dtype=float),
+    measure_max: wp.array(dtype=float),
 ):
     """Writes ``pair_measure_out[p]`` (m) for the live pairs (l, m) of the features
     ``l = tid * features_per_thread ..`` (the pairs ``feature_pair_start[l] ..
-    feature_pair_start[l + 1] - 1``, ``m = pair_other[p]``) and adds their sum to
-    ``measure_sum[0]`` (clear it before the launch). ``pair_inverse_rest_length`` is
-    ``1 / delta^0`` (1/m). Grouping the pairs by their first feature (l < m) reads its
-    vectors once for all its pairs: 1.4x faster on the CPU than a flat list of pairs."""
+    feature_pair_start[l + 1] - 1``, ``m = pair_other[p]``), adds their sum to
+    ``measure_sum[0]`` and raises ``measure_max[0]`` to their largest (clear both before the
+    launch). ``feature_current`` are ``p^t`` and
+    ``feature_target`` ``p^1`` (m); the spread ``q`` is the target if ``use_target``, else the
+    current position. ``pair_inverse_rest_length`` is ``1 / delta^0`` (1/m). Grouping the
+    pairs by their first feature (l < m) reads its vectors once for all its pairs: 1.4x
+    faster on the CPU than a flat list of pairs."""
     first = wp.tid() * features_per_thread
-    last = wp.min(first + features_per_thread, feature_spring.shape[0])
+    last = wp.min(first + features_per_thread, feature_current.shape[0])
     total = float(0.0)
+    top = float(0.0)
     for l in range(first, last):
-        spring = feature_spring[l]
-        spread = feature_spread[l]
+        current = feature_current[l]
+        target = feature_target[l]
+        spring = current - target
+        spread = wp.where(use_target != 0, target, current)
         for p in range(feature_pair_start[l], feature_pair_start[l + 1]):
             m = pair_other[p]
-            mu = (wp.length(spring - feature_spring[m]) * wp.length(spread - feature_spread[m])
+            current_m = feature_current[m]
+            target_m = feature_target[m]
+            mu = (wp.length(spring - (current_m - target_m))
+                  * wp.length(spread - wp.where(use_target != 0, target_m, current_m))
                   * pair_inverse_rest_length[p])
             pair_measure_out[p] = mu
             total += mu
+            top = wp.max(top, mu)
     if total != 0.0:
         wp.atomic_add(measure_sum, 0, total)
+        wp.atomic_max(measure_max, 0, top)
 
 
 @wp.kernel
@@ -76,53 +69,47 @@ def count_outliers(
     pair_count: wp.array(dtype=wp.int32),
     measured_count: wp.array(dtype=wp.int32),
     measure_sum: wp.array(dtype=float),
+    measure_max: wp.array(dtype=float),
     tau: float,
     min_measure: float,
     chunk: int,
     threshold_out: wp.array(dtype=float),
     outlier_count: wp.array(dtype=wp.int32),
+    largest: wp.array(dtype=float),
+    strongest: wp.array(dtype=wp.int32),
 ):
-    """The outlier threshold ``max(tau * mean, min_measure)`` (m) into ``threshold_out[0]``
-    and the number of pairs above it added to ``outlier_count[0]`` (clear it before). The
-    mean is over ``measured_count[0]`` pairs: packed pairs removed since their packing
-    measure 0 and do not count."""
+    """The outlier threshold ``max(tau * mean, min_measure)`` (m) into ``threshold_out[0]``,
+    the number of pairs above it added to ``outlier_count[0]`` and their largest measure
+    (m) into ``largest[0]`` (clear both before). The mean is over ``measured_count[0]``
+    pairs: packed pairs removed since their packing measure 0 and do not count. No pair is
+    read when the largest measure ``measure_max[0]`` is not above the threshold (most
+    frames). A thread that sees every pair (the CPU's) also writes the first pair of largest
+    measure into ``strongest[0]``, which :func:`first_strongest` then leaves."""
     count = pair_count[0]
     if measured_count[0] == 0:
         return
     threshold = wp.max(tau * (measure_sum[0] / float(measured_count[0])), min_measure)
     if wp.tid() == 0:
         threshold_out[0] = threshold
+    if measure_max[0] <= threshold:
+        return
     first = wp.tid() * chunk
     last = wp.min(first + chunk, count)
     above = int(0)
+    top = float(0.0)
+    top_pair = int(0)
     for p in range(first, last):
-        if pair_measure[p] > threshold:
+        mu = pair_measure[p]
+        if mu > threshold:
             above += 1
+            if mu > top:  # strictly: the first of equal measures stays, as np.argmax
+                top = mu
+                top_pair = p
     if above > 0:
         wp.atomic_add(outlier_count, 0, above)
-
-
-@wp.kernel
-def strongest_outlier(
-    pair_measure: wp.array(dtype=float),
-    pair_count: wp.array(dtype=wp.int32),
-    threshold: wp.array(dtype=float),
-    outlier_count: wp.array(dtype=wp.int32),
-    min_outliers: int,
-    chunk: int,
-    largest: wp.array(dtype=float),
-):
-    """The largest outlier measure into ``largest[0]`` (m; clear it before), once there are
-    ``min_outliers`` outliers."""
-    if outlier_count[0] < min_outliers:
-        return
-    first = wp.tid() * chunk
-    last = wp.min(first + chunk, pair_count[0])
-    top = float(0.0)
-    for p in range(first, last):
-        top = wp.max(top, pair_measure[p])
-    if top > threshold[0]:
         wp.atomic_max(largest, 0, top)
+        if first == 0 and last == count:
+            strongest[0] = top_pair
 
 
 @wp.kernel
@@ -136,8 +123,8 @@ def first_strongest(
     strongest: wp.array(dtype=wp.int32),
 ):
     """The first pair whose measure is ``largest[0]`` (as ``np.argmax``) into ``strongest[0]``
-    (set it to the pair count before)."""
-    if outlier_count[0] < min_outliers:
+    (set it to the pair count before), unless :func:`count_outliers` found it."""
+    if outlier_count[0] < min_outliers or strongest[0] < pair_count[0]:
         return
     first = wp.tid() * chunk
     last = wp.min(first + chunk, pair_count[0])
@@ -172,13 +159,45 @@ def outlier_cluster(
     last = wp.min(first + chunk, count)
     found = int(0)
     total = wp.vec4(0.0)
+    limit = threshold[0]
     for p in range(first, last):
         mu = pair_measure[p]
-        offset = pair_midpoint[p] - centre
-        if mu > threshold[0] and wp.dot(offset, offset) <= reach * reach:
-            found += 1
+        if mu > limit:  # the outliers only: their midpoints alone are read
             x = pair_midpoint[p]
-            total += wp.vec4(mu * x[0], mu * x[1], mu * x[2], mu)
+            offset = x - centre
+            if wp.dot(offset, offset) <= reach * reach:
+                found += 1
+                total += wp.vec4(mu * x[0], mu * x[1], mu * x[2], mu)
     if found > 0:
         wp.atomic_add(cluster_count, 0, found)
         wp.atomic_add(cluster_weighted_sum, 0, total)
+
+
+@wp.kernel
+def pairs_near_point(
+    pair_midpoint: wp.array(dtype=wp.vec3d),
+    pair_half: wp.array(dtype=wp.vec3d),
+    point: wp.array(dtype=wp.vec3d),
+    radius: wp.float64,
+    chunk: int,
+    pair_near: wp.array(dtype=wp.int8),
+):
+    """``pair_near[p]`` = 1 where pair p's segment ``midpoint +- half`` (rest, m, float64)
+    passes closer than ``radius`` (m) to ``point[0]``, else 0 (thesis 7.5.3: the pairs a new
+    cut point removes from the graph). A pair whose midpoint is farther than ``radius`` plus
+    its half length is rejected by one distance, without the projection."""
+    first = wp.tid() * chunk
+    last = wp.min(first + chunk, pair_midpoint.shape[0])
+    c = point[0]
+    for p in range(first, last):
+        offset = c - pair_midpoint[p]
+        half = pair_half[p]
+        half_length2 = wp.dot(half, half)
+        reach = radius + wp.sqrt(half_length2)
+        near = wp.int8(0)
+        if wp.dot(offset, offset) < reach * reach:
+            u = wp.clamp(wp.dot(offset, half) / wp.max(half_length2, wp.float64(1.0e-300)),
+                         wp.float64(-1.0), wp.float64(1.0))
+            if wp.length(offset - u * half) < radius:
+                near = wp.int8(1)
+        pair_near[p] = near

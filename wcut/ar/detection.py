@@ -141,9 +141,9 @@ class CutDetector:
         keep = self.rest_length > 0  # coincident features would divide by zero in eq. 7.10
         self.alive = keep.copy()
         self._midpoints = 0.5 * (p0[self._l] + p0[self._m])
-        self._midpoint_tree = cKDTree(self._midpoints)
         self._device = wp.get_device(device)
         self._setup_kernel()
+        self._pack_live(np.ones(len(p0), dtype=bool))  # setup, not the first frame's work
         self.polygons: list[np.ndarray] = []
         self.last_mean = 0.0
         self.last_outliers = 0
@@ -164,9 +164,9 @@ class CutDetector:
         self._measured_wp = wp.zeros(1, dtype=wp.int32, device=d)  # of which not removed since the packing
         self._current_wp = wp.zeros(F, dtype=wp.vec3, device=d)
         self._target_wp = wp.zeros(F, dtype=wp.vec3, device=d)
-        spring, spread = wp.zeros(F, dtype=wp.vec3, device=d), wp.zeros(F, dtype=wp.vec3, device=d)
         self._mu_wp = wp.zeros(P, dtype=float, device=d)
         self._sum_wp = wp.zeros(1, dtype=float, device=d)
+        self._max_wp = wp.zeros(1, dtype=float, device=d)
         self._midpoint_wp = wp.zeros(P, dtype=wp.vec3, device=d)
         self._threshold_wp = wp.zeros(1, dtype=float, device=d)
         self._outliers_wp = wp.zeros(1, dtype=wp.int32, device=d)
@@ -179,23 +179,19 @@ class CutDetector:
         # one graph per frame: on the CPU its replay costs about a microsecond of Python, against
         # some 5 us per recorded launch and more per numpy call when the loop has cooled the caches
         with wp.ScopedCapture(device=d) as capture:
-            for array in (self._sum_wp, self._outliers_wp, largest, self._cluster_sum_wp, self._cluster_count_wp):
+            for array in (self._sum_wp, self._max_wp, self._outliers_wp, largest, self._cluster_sum_wp,
+                          self._cluster_count_wp):
                 array.zero_()
             strongest.fill_(P)
-            wp.launch(k.feature_motion, F, device=d, inputs=[self._current_wp, self._target_wp,
-                                                             int(p.measure == "target")],
-                      outputs=[spring, spread])
             rows = max(F, 1) if d.is_cpu else 1
             wp.launch(k.pair_measure, max(-(-F // rows), 1), device=d,
-                      inputs=[self._pair_start_wp, self._pair_other_wp, self._inverse_length_wp, spring, spread, rows],
-                      outputs=[self._mu_wp, self._sum_wp])
+                      inputs=[self._pair_start_wp, self._pair_other_wp, self._inverse_length_wp, self._current_wp,
+                              self._target_wp, int(p.measure == "target"), rows],
+                      outputs=[self._mu_wp, self._sum_wp, self._max_wp])
             wp.launch(k.count_outliers, threads, device=d,
-                      inputs=[self._mu_wp, self._count_wp, self._measured_wp, self._sum_wp, p.tau, p.min_measure,
-                              chunk],
-                      outputs=[self._threshold_wp, self._outliers_wp])
-            wp.launch(k.strongest_outlier, threads, device=d,
-                      inputs=[self._mu_wp, self._count_wp, self._threshold_wp, self._outliers_wp, p.min_outliers,
-                              chunk], outputs=[largest])
+                      inputs=[self._mu_wp, self._count_wp, self._measured_wp, self._sum_wp, self._max_wp, p.tau,
+                              p.min_measure, chunk],
+                      outputs=[self._threshold_wp, self._outliers_wp, largest, strongest])
             wp.launch(k.first_strongest, threads, device=d,
                       inputs=[self._mu_wp, self._count_wp, self._outliers_wp, largest, p.min_outliers, chunk],
                       outputs=[strongest])
@@ -204,12 +200,25 @@ class CutDetector:
                               strongest, p.min_outliers, reach, chunk],
                       outputs=[self._cluster_sum_wp, self._cluster_count_wp])
         self._graph = capture.graph
+        # the pairs near a new cut point: all of them, in the graph or not (a feature tracked
+        # again must not bring back a pair through the cut), one pass
+        self._point_wp = wp.zeros(1, dtype=wp.vec3d, device=d)
+        self._near_wp = wp.zeros(P, dtype=wp.int8, device=d)
+        self._pair_rest_wp = (wp.array(self._midpoints, dtype=wp.vec3d, device=d),  # held: the graph reads them
+                              wp.array(0.5 * (self.rest_features[self._m] - self.rest_features[self._l]),
+                                       dtype=wp.vec3d, device=d))
+        with wp.ScopedCapture(device=d) as capture:
+            wp.launch(k.pairs_near_point, threads, device=d,
+                      inputs=[*self._pair_rest_wp, self._point_wp, float(p.cut_point_radius), chunk],
+                      outputs=[self._near_wp])
+        self._near_graph = capture.graph
         # CPU arrays are shared with numpy: inputs are written in place and results read without a call
         self._views = {id(a): a.numpy() for a in (self._pair_start_wp, self._pair_other_wp,
                                                   self._inverse_length_wp, self._count_wp, self._measured_wp,
                                                   self._current_wp, self._target_wp, self._mu_wp, self._sum_wp,
                                                   self._midpoint_wp, self._threshold_wp, self._outliers_wp,
-                                                  self._cluster_sum_wp, self._cluster_count_wp)} if d.is_cpu else {}
+                                                  self._cluster_sum_wp, self._cluster_count_wp, self._point_wp,
+                                                  self._near_wp)} if d.is_cpu else {}
         self._slot = np.full(P, -1, dtype=np.int64)  # pair -> its packed index, -1 if not packed or removed since
         self._inverse = np.zeros(P, dtype=np.float32)  # the packed 1 / delta^0, 0 for removed pairs
         self._measured = 0  # packed pairs not removed since
@@ -254,7 +263,11 @@ class CutDetector:
             self._slot[pairs] = -1
             self._inverse[slots] = 0.0
             self._measured -= len(slots)
-            self._copy_in(self._inverse_length_wp, self._inverse)
+            view = self._views.get(id(self._inverse_length_wp))
+            if view is not None:  # only what changed
+                view[slots] = 0.0
+            else:
+                self._copy_in(self._inverse_length_wp, self._inverse)
             self._copy_in(self._measured_wp, np.array([self._measured]))
 
     def _measure_live(self, current, target, active) -> int:
@@ -285,7 +298,7 @@ class CutDetector:
         if view is not None:
             np.copyto(view, np.asarray(value).reshape(view.shape), casting="unsafe")
         else:
-            dtype = {wp.vec3: np.float32, wp.int32: np.int32}.get(array.dtype, np.float32)
+            dtype = wp.dtype_to_numpy(getattr(array.dtype, "_wp_scalar_type_", array.dtype))
             array.assign(np.asarray(value, dtype=dtype))
 
     def _read(self, array: wp.array) -> np.ndarray:
@@ -320,19 +333,12 @@ class CutDetector:
         return self._extend(point, near)
 
     def _remove_pairs_near(self, point: np.ndarray) -> None:
-        """Remove the pairs whose segment (rest) passes within ``cut_point_radius`` of ``point``.
-
-        Only pairs whose midpoint lies within ``cut_point_radius + radius / 2`` can (a pair is
-        at most ``radius`` long): a k-d tree of the midpoints finds them, and the exact segment
-        distance is computed for those."""
-        r = self.params.cut_point_radius
-        near = np.asarray(self._midpoint_tree.query_ball_point(point, r + 0.5 * self.params.radius), dtype=np.int64)
-        near = near[self.alive[near]]
-        a, b = self.rest_features[self._l[near]], self.rest_features[self._m[near]]
-        ab = b - a
-        s = np.clip(np.einsum("pi,pi->p", point - a, ab) / np.maximum(np.einsum("pi,pi->p", ab, ab), 1e-300), 0, 1)
-        gap = np.linalg.norm(a + s[:, None] * ab - point, axis=1)
-        gone = near[gap < r]
+        """Remove the pairs whose segment (rest) passes within ``cut_point_radius`` of ``point``:
+        one kernel pass over every pair (a k-d tree of the midpoints and numpy on the few
+        hundred it returns cost ten times more in the loop, its caches cooled by tracking)."""
+        self._copy_in(self._point_wp, np.reshape(point, (1, 3)))
+        wp.capture_launch(self._near_graph)
+        gone = np.flatnonzero(self._read(self._near_wp).view(bool) & self.alive)
         self.alive[gone] = False
         self._drop_pairs(gone)
         if self._live_key is not None:

@@ -1,0 +1,101 @@
+"""Tests of wcut.kernels.cut_detection: each kernel against numpy, run as the CPU runs it (one
+thread for all pairs) and as a GPU would (many threads, partial sums and atomics)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from wcut.kernels import cut_detection as k
+
+
+def _pairs(rng, features: int, per_feature: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (l < m) grouped by l, as the detector packs them: CSR starts and the others."""
+    pairs = {(int(a), int(b)) for a, b in rng.integers(0, features, (features * per_feature, 2)) if a < b}
+    pairs = np.array(sorted(pairs), dtype=np.int64)
+    start = np.searchsorted(pairs[:, 0], np.arange(features + 1))
+    return pairs, start
+
+
+@pytest.mark.parametrize("use_target", [1, 0])
+@pytest.mark.parametrize("split", ["one thread", "many threads"])
+def test_measure_outliers_and_cluster_equal_numpy(use_target, split):
+    rng = np.random.default_rng(5)
+    F = 120
+    pairs, start = _pairs(rng, F, 6)
+    P = len(pairs)
+    current = rng.normal(0.0, 0.01, (F, 3)).astype(np.float32)
+    target = (current + rng.normal(0.0, 1e-3, (F, 3))).astype(np.float32)
+    target[:20, 0] += 0.02  # a few features far off: outliers
+    inverse = (1.0 / rng.uniform(0.005, 0.01, P)).astype(np.float32)
+    midpoint = rng.uniform(0.0, 0.05, (P, 3)).astype(np.float32)
+    tau, min_measure, reach = 3.0, 0.0, 0.02
+
+    l, m = pairs[:, 0], pairs[:, 1]
+    d = current.astype(np.float64) - target
+    q = (target if use_target else current).astype(np.float64)
+    expected = np.linalg.norm(d[l] - d[m], axis=1) * np.linalg.norm(q[l] - q[m], axis=1) * inverse
+
+    rows, chunk = (F, P) if split == "one thread" else (7, 5)
+    mu, total, top = wp.zeros(P, dtype=float), wp.zeros(1, dtype=float), wp.zeros(1, dtype=float)
+    count = wp.array([P], dtype=wp.int32)
+    wp.launch(k.pair_measure, -(-F // rows), inputs=[wp.array(start, dtype=wp.int32), wp.array(m, dtype=wp.int32),
+                                                     wp.array(inverse), wp.array(current, dtype=wp.vec3),
+                                                     wp.array(target, dtype=wp.vec3), use_target, rows],
+              outputs=[mu, total, top])
+    np.testing.assert_allclose(mu.numpy(), expected, rtol=1e-5)
+    assert total.numpy()[0] == pytest.approx(expected.sum(), rel=1e-5)
+    assert top.numpy()[0] == mu.numpy().max()
+
+    threshold, outliers = wp.zeros(1, dtype=float), wp.zeros(1, dtype=wp.int32)
+    largest, strongest = wp.zeros(1, dtype=float), wp.array([P], dtype=wp.int32)
+    threads = -(-P // chunk)
+    wp.launch(k.count_outliers, threads, inputs=[mu, count, count, total, top, tau, min_measure, chunk],
+              outputs=[threshold, outliers, largest, strongest])
+    wp.launch(k.first_strongest, threads, inputs=[mu, count, outliers, largest, 3, chunk], outputs=[strongest])
+    values = mu.numpy()
+    limit = tau * float(total.numpy()[0]) / P
+    assert threshold.numpy()[0] == pytest.approx(limit, rel=1e-6)
+    above = values > threshold.numpy()[0]
+    assert outliers.numpy()[0] == above.sum() >= 3
+    assert strongest.numpy()[0] == np.argmax(values)
+
+    weighted, found = wp.zeros(1, dtype=wp.vec4), wp.zeros(1, dtype=wp.int32)
+    wp.launch(k.outlier_cluster, threads,
+              inputs=[mu, wp.array(midpoint, dtype=wp.vec3), count, threshold, outliers, strongest, 3, reach, chunk],
+              outputs=[weighted, found])
+    near = above & (np.sum((midpoint - midpoint[np.argmax(values)]) ** 2, axis=1) <= reach * reach)
+    assert found.numpy()[0] == near.sum() >= 1
+    expected_sum = np.concatenate([(values[near, None] * midpoint[near]).sum(axis=0), [values[near].sum()]])
+    np.testing.assert_allclose(weighted.numpy()[0], expected_sum, rtol=1e-5)
+
+
+def test_without_an_outlier_no_pair_is_counted():
+    mu = wp.array(np.full(50, 2.0, dtype=np.float32))
+    count = wp.array([50], dtype=wp.int32)
+    total, top = wp.array([100.0], dtype=float), wp.array([2.0], dtype=float)
+    threshold, outliers = wp.zeros(1, dtype=float), wp.zeros(1, dtype=wp.int32)
+    largest, strongest = wp.zeros(1, dtype=float), wp.array([50], dtype=wp.int32)
+    wp.launch(k.count_outliers, 1, inputs=[mu, count, count, total, top, 1.5, 0.0, 50],
+              outputs=[threshold, outliers, largest, strongest])
+    assert threshold.numpy()[0] == pytest.approx(3.0)
+    assert outliers.numpy()[0] == 0 and strongest.numpy()[0] == 50
+
+
+@pytest.mark.parametrize("chunk", [1000, 3])
+def test_pairs_near_a_point_equal_the_segment_distance(chunk):
+    rng = np.random.default_rng(2)
+    a, b = rng.uniform(0.0, 0.05, (400, 3)), rng.uniform(0.0, 0.05, (400, 3))
+    b[:10] = a[:10]  # zero-length pairs: their point
+    point, radius = np.array([0.025, 0.02, 0.03]), 0.008
+    near = wp.zeros(len(a), dtype=wp.int8)
+    wp.launch(k.pairs_near_point, -(-len(a) // chunk),
+              inputs=[wp.array(0.5 * (a + b), dtype=wp.vec3d), wp.array(0.5 * (b - a), dtype=wp.vec3d),
+                      wp.array(point[None], dtype=wp.vec3d), radius, chunk], outputs=[near])
+    ab = b - a
+    s = np.clip(np.einsum("pi,pi->p", point - a, ab) / np.maximum(np.einsum("pi,pi->p", ab, ab), 1e-300), 0, 1)
+    gap = np.linalg.norm(a + s[:, None] * ab - point, axis=1)
+    expected = gap < radius
+    assert 10 < expected.sum() < 390
+    np.testing.assert_array_equal(near.numpy().astype(bool), expected)
