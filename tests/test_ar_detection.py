@@ -56,11 +56,14 @@ def test_kernel_measure_equals_the_numpy_reference(variant):
     threshold = max(det.params.tau * mean, det.params.min_measure)
     assert abs(det.last_outliers - int((expected > threshold).sum())) <= int((abs(expected - threshold) < 1e-6).sum())
     assert det.last_outliers > 0
-    active = active & (rng.uniform(size=len(p0)) > 0.2)  # features lost: their pairs leave in place
-    mu, count, mean = det.measure(current, target, active)
-    expected = reference_measure(p0, det.pairs, current, target, active, det.alive, variant)
-    np.testing.assert_allclose(mu, expected, rtol=1e-4, atol=1e-9)
-    assert count == int((expected >= 0).sum()) and mean == pytest.approx(expected[expected >= 0].mean(), rel=1e-4)
+    for keep in (0.9, 0.5):  # features lost: their pairs leave in place, then (too few left) packed again
+        packed = det._packed
+        active = active & (rng.uniform(size=len(p0)) < keep)
+        mu, count, mean = det.measure(current, target, active)
+        expected = reference_measure(p0, det.pairs, current, target, active, det.alive, variant)
+        np.testing.assert_allclose(mu, expected, rtol=1e-4, atol=1e-9)
+        assert count == int((expected >= 0).sum()) and mean == pytest.approx(expected[expected >= 0].mean(), rel=1e-4)
+        assert (det._packed == packed) == (keep == 0.9)
 
 
 def test_neighbour_graph_is_every_pair_within_the_radius():

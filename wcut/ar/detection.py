@@ -23,6 +23,7 @@ cut lines in the current configuration and notes that they drift as the object d
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,10 @@ from ..errors import WcutError
 #: the two variants of eq. 7.10: ``target`` is delta^1 / delta^0 ([82], the image alone),
 #: ``current`` is delta^t / delta^0 ([78], smoothed by the model)
 MEASURES = ("target", "current")
+
+#: The live pairs are packed again once fewer than this fraction of the packed ones is still
+#: measured: the measure's pass goes over the pairs removed in place too (as zeros).
+REPACK_BELOW = 0.6
 
 
 @dataclass(frozen=True)
@@ -221,7 +226,8 @@ class CutDetector:
                                                   self._near_wp)} if d.is_cpu else {}
         self._slot = np.full(P, -1, dtype=np.int64)  # pair -> its packed index, -1 if not packed or removed since
         self._inverse = np.zeros(P, dtype=np.float32)  # the packed 1 / delta^0, 0 for removed pairs
-        self._measured = 0  # packed pairs not removed since
+        self._packed = 0  # pairs packed
+        self._measured = 0  # of which not removed since
         self._active = np.zeros(F, dtype=bool)  # the features they were packed for
         self._live_key: tuple[bytes, bytes] | None = None  # (alive, active) they were packed for
 
@@ -229,16 +235,19 @@ class CutDetector:
         """Pack the live pairs (in the graph, both features active) at the front of the
         kernel's pair arrays when they changed since the last packing. Pairs that only left
         (features dropped, pairs removed around a cut point: every change of a video but the
-        first frame's) are taken out in place by :meth:`_drop_pairs`; the rest packs again."""
+        first frame's) are taken out in place by :meth:`_drop_pairs`, until fewer than
+        :data:`REPACK_BELOW` of the packed pairs are left; the rest packs again."""
         key = (self.alive.tobytes(), active.tobytes())  # a few us; np.array_equal costs ten times more
         if key == self._live_key:
             return
-        if self._live_key is not None and key[0] == self._live_key[0] and not (active & ~self._active).any():
+        only_left = (self._live_key is not None and key[0] == self._live_key[0]
+                     and not (active & ~self._active).any())
+        if only_left:
             dropped = self._active & ~active
             self._drop_pairs(np.flatnonzero(dropped[self._l] | dropped[self._m]))
-        else:
+        if not only_left or self._measured < REPACK_BELOW * self._packed:
             live = np.flatnonzero(self.alive & active[self._l] & active[self._m])
-            n = self._measured = len(live)
+            n = self._measured = self._packed = len(live)
             self._slot[:] = -1
             self._slot[live] = np.arange(n)
             other = np.zeros(len(self.pairs), dtype=np.int32)
@@ -273,7 +282,9 @@ class CutDetector:
     def _measure_live(self, current, target, active) -> int:
         """Run the measure and the outlier count on the live pairs for these features;
         returns their number."""
-        self._pack_live(np.asarray(active, dtype=bool).reshape(-1))
+        if not (type(active) is np.ndarray and active.dtype == bool and active.ndim == 1):  # the loop's is
+            active = np.asarray(active, dtype=bool).reshape(-1)
+        self._pack_live(active)
         if self._measured:
             self._copy_in(self._current_wp, current)
             self._copy_in(self._target_wp, target)
@@ -296,7 +307,7 @@ class CutDetector:
         (``assign`` costs some 30 us there, more than the measure itself), else by ``assign``."""
         view = self._views.get(id(array))
         if view is not None:
-            np.copyto(view, np.asarray(value).reshape(view.shape), casting="unsafe")
+            view[...] = value  # casts, and fills a (1, 3) view from a (3,) point
         else:
             dtype = wp.dtype_to_numpy(getattr(array.dtype, "_wp_scalar_type_", array.dtype))
             array.assign(np.asarray(value, dtype=dtype))
@@ -341,17 +352,20 @@ class CutDetector:
         gone = np.flatnonzero(self._read(self._near_wp).view(bool) & self.alive)
         self.alive[gone] = False
         self._drop_pairs(gone)
-        if self._live_key is not None:
+        if self._live_key is not None and self._measured >= REPACK_BELOW * self._packed:
             self._live_key = (self.alive.tobytes(), self._live_key[1])
+        else:  # too few left: the next frame packs again
+            self._live_key = None
 
     def _extend(self, point: np.ndarray, outliers: int) -> CutPoint:
         """Put ``point`` at the nearest polygon end within ``join_radius`` (figure 7.7, middle)
         with its look-ahead, or start a new polygon with it."""
         join = self.params.join_radius or 3.0 * self.params.cut_point_radius
-        best, index, at_start = np.inf, -1, False
+        best, index, at_start = math.inf, -1, False
+        at = point.tolist()  # plain floats: a few distances, where numpy's per-call cost dominates
         for k, polygon in enumerate(self.polygons):
             for start, end in ((False, polygon[-1]), (True, polygon[0])):
-                gap = float(np.linalg.norm(point - end))
+                gap = math.dist(at, end.tolist())
                 if gap < best and gap <= join and not (start and len(polygon) == 1):
                     best, index, at_start = gap, k, start
         if index < 0:
@@ -361,7 +375,7 @@ class CutDetector:
         previous = polygon[0] if at_start else polygon[-1]
         self.polygons[index] = np.vstack([point, polygon] if at_start else [polygon, point])
         step = point - previous
-        length = float(np.linalg.norm(step))
+        length = math.dist(at, previous.tolist())
         if length == 0.0:
             return CutPoint(point, index, previous.copy(), None, None, at_start, outliers)
         r = self.params.cut_point_radius * step / length
