@@ -7,7 +7,8 @@ pulling) are packed at the front of the pair arrays by the caller, grouped by th
 feature, so the pair loop has no branch. The kernels run in this order, as one captured
 graph: :func:`pair_measure`, :func:`count_outliers` (with the largest outlier), then, once
 there are enough outliers, the cluster around the strongest one: :func:`first_strongest`,
-:func:`outlier_cluster`. :func:`pairs_near_point` finds the pairs a new cut point removes.
+:func:`outlier_cluster`, and when they put a cut point, :func:`cluster_cut_point` and
+:func:`pairs_near_point`, which finds the pairs it removes.
 
 Each thread handles a run of ``chunk`` consecutive pairs (or features) and adds its partial
 sums once: on the CPU a launch runs its threads one after another, and the caller gives one
@@ -174,18 +175,40 @@ def outlier_cluster(
 
 
 @wp.kernel
+def cluster_cut_point(
+    cluster_weighted_sum: wp.array(dtype=wp.vec4),
+    cluster_count: wp.array(dtype=wp.int32),
+    min_outliers: int,
+    point: wp.array(dtype=wp.vec3d),
+):
+    """The cut point (thesis 7.5.3) into ``point[0]`` (m, rest, float64) once the cluster of
+    :func:`outlier_cluster` has ``min_outliers`` outliers: their midpoints' barycentre weighted
+    by their measure. One thread."""
+    if cluster_count[0] < min_outliers:
+        return
+    total = cluster_weighted_sum[0]
+    weight = wp.float64(total[3])
+    point[0] = wp.vec3d(wp.float64(total[0]) / weight, wp.float64(total[1]) / weight, wp.float64(total[2]) / weight)
+
+
+@wp.kernel
 def pairs_near_point(
     pair_midpoint: wp.array(dtype=wp.vec3d),
     pair_half: wp.array(dtype=wp.vec3d),
     point: wp.array(dtype=wp.vec3d),
     radius: wp.float64,
+    found: wp.array(dtype=wp.int32),
+    min_found: int,
     chunk: int,
     pair_near: wp.array(dtype=wp.int8),
 ):
     """``pair_near[p]`` = 1 where pair p's segment ``midpoint +- half`` (rest, m, float64)
     passes closer than ``radius`` (m) to ``point[0]``, else 0 (thesis 7.5.3: the pairs a new
-    cut point removes from the graph). A pair whose midpoint is farther than ``radius`` plus
-    its half length is rejected by one distance, without the projection."""
+    cut point removes from the graph); nothing is written unless ``found[0] >= min_found``
+    (a cut point was put). A pair whose midpoint is farther than ``radius`` plus its half
+    length is rejected by one distance, without the projection."""
+    if found[0] < min_found:
+        return
     first = wp.tid() * chunk
     last = wp.min(first + chunk, pair_midpoint.shape[0])
     c = point[0]

@@ -70,6 +70,13 @@ def test_measure_outliers_and_cluster_equal_numpy(use_target, split):
     expected_sum = np.concatenate([(values[near, None] * midpoint[near]).sum(axis=0), [values[near].sum()]])
     np.testing.assert_allclose(weighted.numpy()[0], expected_sum, rtol=1e-5)
 
+    point = wp.zeros(1, dtype=wp.vec3d)
+    wp.launch(k.cluster_cut_point, 1, inputs=[weighted, found, int(near.sum()) + 1], outputs=[point])
+    assert not point.numpy().any()  # too few outliers near the strongest: no cut point
+    wp.launch(k.cluster_cut_point, 1, inputs=[weighted, found, int(near.sum())], outputs=[point])
+    total = weighted.numpy()[0].astype(np.float64)
+    np.testing.assert_array_equal(point.numpy()[0], total[:3] / total[3])
+
 
 def test_without_an_outlier_no_pair_is_counted():
     mu = wp.array(np.full(50, 2.0, dtype=np.float32))
@@ -90,9 +97,11 @@ def test_pairs_near_a_point_equal_the_segment_distance(chunk):
     b[:10] = a[:10]  # zero-length pairs: their point
     point, radius = np.array([0.025, 0.02, 0.03]), 0.008
     near = wp.zeros(len(a), dtype=wp.int8)
-    wp.launch(k.pairs_near_point, -(-len(a) // chunk),
-              inputs=[wp.array(0.5 * (a + b), dtype=wp.vec3d), wp.array(0.5 * (b - a), dtype=wp.vec3d),
-                      wp.array(point[None], dtype=wp.vec3d), radius, chunk], outputs=[near])
+    inputs = [wp.array(0.5 * (a + b), dtype=wp.vec3d), wp.array(0.5 * (b - a), dtype=wp.vec3d),
+              wp.array(point[None], dtype=wp.vec3d), radius, wp.array([2], dtype=wp.int32)]
+    wp.launch(k.pairs_near_point, -(-len(a) // chunk), inputs=[*inputs, 3, chunk], outputs=[near])
+    assert not near.numpy().any()  # no cut point put: nothing marked
+    wp.launch(k.pairs_near_point, -(-len(a) // chunk), inputs=[*inputs, 2, chunk], outputs=[near])
     ab = b - a
     s = np.clip(np.einsum("pi,pi->p", point - a, ab) / np.maximum(np.einsum("pi,pi->p", ab, ab), 1e-300), 0, 1)
     gap = np.linalg.norm(a + s[:, None] * ab - point, axis=1)

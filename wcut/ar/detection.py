@@ -176,6 +176,11 @@ class CutDetector:
         self._threshold_wp = wp.zeros(1, dtype=float, device=d)
         self._outliers_wp = wp.zeros(1, dtype=wp.int32, device=d)
         largest, strongest = wp.zeros(1, dtype=float, device=d), wp.zeros(1, dtype=wp.int32, device=d)
+        self._point_wp = wp.zeros(1, dtype=wp.vec3d, device=d)
+        self._near_wp = wp.zeros(P, dtype=wp.int8, device=d)
+        self._pair_rest_wp = (wp.array(self._midpoints, dtype=wp.vec3d, device=d),  # held: the graph reads them
+                              wp.array(0.5 * (self.rest_features[self._m] - self.rest_features[self._l]),
+                                       dtype=wp.vec3d, device=d))
         self._cluster_sum_wp = wp.zeros(1, dtype=wp.vec4, device=d)
         self._cluster_count_wp = wp.zeros(1, dtype=wp.int32, device=d)
         chunk = max(P, 1) if d.is_cpu else 1  # the CPU runs a launch's threads in turn: one thread, one pass
@@ -204,19 +209,14 @@ class CutDetector:
                       inputs=[self._mu_wp, self._midpoint_wp, self._count_wp, self._threshold_wp, self._outliers_wp,
                               strongest, p.min_outliers, reach, chunk],
                       outputs=[self._cluster_sum_wp, self._cluster_count_wp])
-        self._graph = capture.graph
-        # the pairs near a new cut point: all of them, in the graph or not (a feature tracked
-        # again must not bring back a pair through the cut), one pass
-        self._point_wp = wp.zeros(1, dtype=wp.vec3d, device=d)
-        self._near_wp = wp.zeros(P, dtype=wp.int8, device=d)
-        self._pair_rest_wp = (wp.array(self._midpoints, dtype=wp.vec3d, device=d),  # held: the graph reads them
-                              wp.array(0.5 * (self.rest_features[self._m] - self.rest_features[self._l]),
-                                       dtype=wp.vec3d, device=d))
-        with wp.ScopedCapture(device=d) as capture:
+            # the pairs through the sphere around a new cut point: all of them, in the graph or
+            # not (a feature tracked again must not bring back a pair through the cut)
+            wp.launch(k.cluster_cut_point, 1, device=d, inputs=[self._cluster_sum_wp, self._cluster_count_wp,
+                                                                p.min_outliers], outputs=[self._point_wp])
             wp.launch(k.pairs_near_point, threads, device=d,
-                      inputs=[*self._pair_rest_wp, self._point_wp, float(p.cut_point_radius), chunk],
-                      outputs=[self._near_wp])
-        self._near_graph = capture.graph
+                      inputs=[*self._pair_rest_wp, self._point_wp, float(p.cut_point_radius), self._cluster_count_wp,
+                              p.min_outliers, chunk], outputs=[self._near_wp])
+        self._graph = capture.graph
         # CPU arrays are shared with numpy: inputs are written in place and results read without a call
         self._views = {id(a): a.numpy() for a in (self._pair_start_wp, self._pair_other_wp,
                                                   self._inverse_length_wp, self._count_wp, self._measured_wp,
@@ -338,18 +338,16 @@ class CutDetector:
         near = int(self._read(self._cluster_count_wp)[0])
         if near < self.params.min_outliers:
             return None
-        weighted = self._read(self._cluster_sum_wp)[0].astype(np.float64)
-        point = weighted[:3] / weighted[3]
-        self._remove_pairs_near(point)
+        point = np.array(self._read(self._point_wp)[0], dtype=np.float64)
+        self._remove_pairs_near_point()
         return self._extend(point, near)
 
-    def _remove_pairs_near(self, point: np.ndarray) -> None:
-        """Remove the pairs whose segment (rest) passes within ``cut_point_radius`` of ``point``:
-        one kernel pass over every pair (a k-d tree of the midpoints and numpy on the few
-        hundred it returns cost ten times more in the loop, its caches cooled by tracking)."""
-        self._copy_in(self._point_wp, np.reshape(point, (1, 3)))
-        wp.capture_launch(self._near_graph)
-        gone = np.flatnonzero(self._read(self._near_wp).view(bool) & self.alive)
+    def _remove_pairs_near_point(self) -> None:
+        """Remove the pairs whose segment (rest) passes within ``cut_point_radius`` of the new
+        cut point, marked by the graph's last kernel (a k-d tree of the midpoints and numpy on
+        the few hundred pairs it returns cost ten times more in the loop)."""
+        gone = np.flatnonzero(self._read(self._near_wp))
+        gone = gone[self.alive[gone]]
         self.alive[gone] = False
         self._drop_pairs(gone)
         if self._live_key is not None and self._measured >= REPACK_BELOW * self._packed:
