@@ -127,7 +127,7 @@ class CutDetector:
 
     Attributes:
         pairs: (P, 2) neighbour pairs (l < m), ``C_F^0``.
-        alive: (P,) pairs still in the graph ``C_F^t``.
+        alive: (P,) pairs still in the graph ``C_F^t`` (read-only: :meth:`remove_pairs` changes it).
         polygons: list of (n, 3) cut polygons (m, rest), each in order.
         last_mean: mean measure of the last update (0 before any).
         last_outliers: outlier pairs of the last update.
@@ -143,8 +143,12 @@ class CutDetector:
         self.pairs = self.pairs[np.lexsort((self.pairs[:, 1], self.pairs[:, 0]))]
         self._l, self._m = self.pairs[:, 0].copy(), self.pairs[:, 1].copy()
         self.rest_length = np.linalg.norm(p0[self._l] - p0[self._m], axis=1)
-        keep = self.rest_length > 0  # coincident features would divide by zero in eq. 7.10
-        self.alive = keep.copy()
+        self._alive = self.rest_length > 0  # coincident features would divide by zero in eq. 7.10
+        # the pairs of each feature (feature f: _incident[_incident_start[f]:_incident_start[f + 1]])
+        ends = np.concatenate([self._l, self._m])
+        order = np.argsort(ends, kind="stable")
+        self._incident = order % max(len(self.pairs), 1)
+        self._incident_start = np.searchsorted(ends[order], np.arange(len(p0) + 1)).tolist()
         self._midpoints = 0.5 * (p0[self._l] + p0[self._m])
         self._device = wp.get_device(device)
         self._setup_kernel()
@@ -154,9 +158,26 @@ class CutDetector:
         self.last_outliers = 0
 
     @property
+    def alive(self) -> np.ndarray:
+        """(P,) bool, the pairs still in the graph (a read-only view)."""
+        view = self._alive.view()
+        view.flags.writeable = False
+        return view
+
+    @property
     def pair_count(self) -> int:
         """Pairs still in the graph."""
-        return int(self.alive.sum())
+        return int(self._alive.sum())
+
+    def remove_pairs(self, pairs) -> None:
+        """Take pairs (indices into :attr:`pairs`) out of the graph for good, as a cut point
+        does with the pairs through its sphere."""
+        gone = np.asarray(pairs, dtype=np.int64).reshape(-1)
+        gone = np.unique(gone[self._alive[gone]])
+        self._alive[gone] = False
+        self._drop_pairs(gone)
+        if self._measured < REPACK_BELOW * self._packed:
+            self._live_key = None  # too few left: the next frame packs again
 
     def _setup_kernel(self) -> None:
         from ..kernels import cut_detection as k
@@ -225,11 +246,11 @@ class CutDetector:
                                                   self._cluster_sum_wp, self._cluster_count_wp, self._point_wp,
                                                   self._near_wp)} if d.is_cpu else {}
         self._slot = np.full(P, -1, dtype=np.int64)  # pair -> its packed index, -1 if not packed or removed since
-        self._inverse = np.zeros(P, dtype=np.float32)  # the packed 1 / delta^0, 0 for removed pairs
+        self._inverse = np.zeros(P, dtype=np.float32)  # the packed 1 / delta^0 (kept for a device without views)
         self._packed = 0  # pairs packed
         self._measured = 0  # of which not removed since
         self._active = np.zeros(F, dtype=bool)  # the features they were packed for
-        self._live_key: tuple[bytes, bytes] | None = None  # (alive, active) they were packed for
+        self._live_key: bytes | None = None  # the active features they were packed for, None: pack again
 
     def _pack_live(self, active: np.ndarray) -> None:
         """Pack the live pairs (in the graph, both features active) at the front of the
@@ -237,16 +258,16 @@ class CutDetector:
         (features dropped, pairs removed around a cut point: every change of a video but the
         first frame's) are taken out in place by :meth:`_drop_pairs`, until fewer than
         :data:`REPACK_BELOW` of the packed pairs are left; the rest packs again."""
-        key = (self.alive.tobytes(), active.tobytes())  # a few us; np.array_equal costs ten times more
+        key = active.tobytes()  # a few us; np.array_equal costs ten times more
         if key == self._live_key:
             return
-        only_left = (self._live_key is not None and key[0] == self._live_key[0]
-                     and not (active & ~self._active).any())
-        if only_left:
-            dropped = self._active & ~active
-            self._drop_pairs(np.flatnonzero(dropped[self._l] | dropped[self._m]))
+        changed = np.flatnonzero(active != self._active).tolist()
+        only_left = self._live_key is not None and not active[changed].any()
+        if only_left:  # the pairs of the features dropped since
+            start, incident = self._incident_start, self._incident
+            self._drop_pairs(np.concatenate([incident[start[f]:start[f + 1]] for f in changed]))
         if not only_left or self._measured < REPACK_BELOW * self._packed:
-            live = np.flatnonzero(self.alive & active[self._l] & active[self._m])
+            live = np.flatnonzero(self._alive & active[self._l] & active[self._m])
             n = self._measured = self._packed = len(live)
             self._slot[:] = -1
             self._slot[live] = np.arange(n)
@@ -265,19 +286,22 @@ class CutDetector:
 
     def _drop_pairs(self, pairs: np.ndarray) -> None:
         """Take pairs out of the packed ones in place: their ``1 / delta^0`` becomes 0, so
-        they measure 0, and the mean's count drops."""
+        they measure 0, and the mean's count drops. (A pair may be given twice.) Few numpy
+        calls: each costs some 10 us in the loop, its caches cooled by tracking."""
         slots = self._slot[pairs]
         slots = slots[slots >= 0]
         if len(slots):
+            slots = np.unique(slots)
             self._slot[pairs] = -1
-            self._inverse[slots] = 0.0
             self._measured -= len(slots)
             view = self._views.get(id(self._inverse_length_wp))
             if view is not None:  # only what changed
                 view[slots] = 0.0
+                self._views[id(self._measured_wp)][0] = self._measured
             else:
+                self._inverse[slots] = 0.0
                 self._copy_in(self._inverse_length_wp, self._inverse)
-            self._copy_in(self._measured_wp, np.array([self._measured]))
+                self._copy_in(self._measured_wp, np.array([self._measured]))
 
     def _measure_live(self, current, target, active) -> int:
         """Run the measure and the outlier count on the live pairs for these features;
@@ -339,21 +363,8 @@ class CutDetector:
         if near < self.params.min_outliers:
             return None
         point = np.array(self._read(self._point_wp)[0], dtype=np.float64)
-        self._remove_pairs_near_point()
+        self.remove_pairs(np.flatnonzero(self._read(self._near_wp)))  # marked by the graph's last kernel
         return self._extend(point, near)
-
-    def _remove_pairs_near_point(self) -> None:
-        """Remove the pairs whose segment (rest) passes within ``cut_point_radius`` of the new
-        cut point, marked by the graph's last kernel (a k-d tree of the midpoints and numpy on
-        the few hundred pairs it returns cost ten times more in the loop)."""
-        gone = np.flatnonzero(self._read(self._near_wp))
-        gone = gone[self.alive[gone]]
-        self.alive[gone] = False
-        self._drop_pairs(gone)
-        if self._live_key is not None and self._measured >= REPACK_BELOW * self._packed:
-            self._live_key = (self.alive.tobytes(), self._live_key[1])
-        else:  # too few left: the next frame packs again
-            self._live_key = None
 
     def _extend(self, point: np.ndarray, outliers: int) -> CutPoint:
         """Put ``point`` at the nearest polygon end within ``join_radius`` (figure 7.7, middle)
