@@ -10,9 +10,10 @@ there are enough outliers, the cluster around the strongest one: :func:`first_st
 :func:`outlier_cluster`, and when they put a cut point, :func:`cluster_cut_point` and
 :func:`pairs_near_point`, which finds the pairs it removes.
 
-Each thread handles a run of ``chunk`` consecutive pairs (or features) and adds its partial
-sums once: on the CPU a launch runs its threads one after another, and the caller gives one
-thread all of them.
+Each thread handles a run of ``rows`` consecutive features (their rows of pairs; of ``chunk``
+pairs in :func:`pairs_near_point`) and adds its partial sums once: on the CPU a launch runs its threads one after another, and the caller
+gives one thread all of them. :func:`pair_measure` keeps each row's largest measure, so the
+later kernels read only the rows that hold an outlier (a frame without a cut has a few).
 """
 
 import warp as wp
@@ -26,22 +27,23 @@ def pair_measure(
     feature_current: wp.array(dtype=wp.vec3),
     feature_target: wp.array(dtype=wp.vec3),
     use_target: int,
-    features_per_thread: int,
+    rows: int,
     pair_measure_out: wp.array(dtype=float),
+    feature_row_max: wp.array(dtype=float),
     measure_sum: wp.array(dtype=float),
     measure_max: wp.array(dtype=float),
 ):
     """Writes ``pair_measure_out[p]`` (m) for the live pairs (l, m) of the features
-    ``l = tid * features_per_thread ..`` (the pairs ``feature_pair_start[l] ..
-    feature_pair_start[l + 1] - 1``, ``m = pair_other[p]``), adds their sum to
-    ``measure_sum[0]`` and raises ``measure_max[0]`` to their largest (clear both before the
-    launch). ``feature_current`` are ``p^t`` and
-    ``feature_target`` ``p^1`` (m); the spread ``q`` is the target if ``use_target``, else the
-    current position. ``pair_inverse_rest_length`` is ``1 / delta^0`` (1/m). Grouping the
-    pairs by their first feature (l < m) reads its vectors once for all its pairs: 1.4x
-    faster on the CPU than a flat list of pairs."""
-    first = wp.tid() * features_per_thread
-    last = wp.min(first + features_per_thread, feature_current.shape[0])
+    ``l = tid * rows ..`` (the pairs ``feature_pair_start[l] .. feature_pair_start[l + 1] - 1``,
+    ``m = pair_other[p]``) and the largest of each row into ``feature_row_max[l]`` (m), adds
+    their sum to ``measure_sum[0]`` and raises ``measure_max[0]`` to their largest (clear both
+    before the launch). ``feature_current`` are ``p^t`` and ``feature_target`` ``p^1`` (m); the
+    spread ``q`` is the target if ``use_target``, else the current position.
+    ``pair_inverse_rest_length`` is ``1 / delta^0`` (1/m). Grouping the pairs by their first
+    feature (l < m) reads its vectors once for all its pairs: 1.4x faster on the CPU than a
+    flat list of pairs."""
+    first = wp.tid() * rows
+    last = wp.min(first + rows, feature_current.shape[0])
     total = float(0.0)
     top = float(0.0)
     for l in range(first, last):
@@ -49,6 +51,7 @@ def pair_measure(
         target = feature_target[l]
         spring = current - target
         spread = wp.where(use_target != 0, target, current)
+        row_top = float(0.0)
         for p in range(feature_pair_start[l], feature_pair_start[l + 1]):
             m = pair_other[p]
             current_m = feature_current[m]
@@ -58,7 +61,9 @@ def pair_measure(
                   * pair_inverse_rest_length[p])
             pair_measure_out[p] = mu
             total += mu
-            top = wp.max(top, mu)
+            row_top = wp.max(row_top, mu)
+        feature_row_max[l] = row_top
+        top = wp.max(top, row_top)
     if total != 0.0:
         wp.atomic_add(measure_sum, 0, total)
         wp.atomic_max(measure_max, 0, top)
@@ -67,13 +72,14 @@ def pair_measure(
 @wp.kernel
 def count_outliers(
     pair_measure: wp.array(dtype=float),
-    pair_count: wp.array(dtype=wp.int32),
+    feature_pair_start: wp.array(dtype=wp.int32),
+    feature_row_max: wp.array(dtype=float),
     measured_count: wp.array(dtype=wp.int32),
     measure_sum: wp.array(dtype=float),
     measure_max: wp.array(dtype=float),
     tau: float,
     min_measure: float,
-    chunk: int,
+    rows: int,
     threshold_out: wp.array(dtype=float),
     outlier_count: wp.array(dtype=wp.int32),
     largest: wp.array(dtype=float),
@@ -82,11 +88,10 @@ def count_outliers(
     """The outlier threshold ``max(tau * mean, min_measure)`` (m) into ``threshold_out[0]``,
     the number of pairs above it added to ``outlier_count[0]`` and their largest measure
     (m) into ``largest[0]`` (clear both before). The mean is over ``measured_count[0]``
-    pairs: packed pairs removed since their packing measure 0 and do not count. No pair is
-    read when the largest measure ``measure_max[0]`` is not above the threshold (most
-    frames). A thread that sees every pair (the CPU's) also writes the first pair of largest
-    measure into ``strongest[0]``, which :func:`first_strongest` then leaves."""
-    count = pair_count[0]
+    pairs: packed pairs removed since their packing measure 0 and do not count. Only the
+    rows whose largest measure is above the threshold are read, none on most frames. A
+    thread that sees every row (the CPU's) also writes the first pair of largest measure
+    into ``strongest[0]``, which :func:`first_strongest` then leaves."""
     if measured_count[0] == 0:
         return
     threshold = wp.max(tau * (measure_sum[0] / float(measured_count[0])), min_measure)
@@ -94,58 +99,67 @@ def count_outliers(
         threshold_out[0] = threshold
     if measure_max[0] <= threshold:
         return
-    first = wp.tid() * chunk
-    last = wp.min(first + chunk, count)
+    features = feature_row_max.shape[0]
+    first = wp.tid() * rows
+    last = wp.min(first + rows, features)
     above = int(0)
     top = float(0.0)
     top_pair = int(0)
-    for p in range(first, last):
-        mu = pair_measure[p]
-        if mu > threshold:
-            above += 1
-            if mu > top:  # strictly: the first of equal measures stays, as np.argmax
-                top = mu
-                top_pair = p
+    for l in range(first, last):
+        if feature_row_max[l] > threshold:
+            for p in range(feature_pair_start[l], feature_pair_start[l + 1]):
+                mu = pair_measure[p]
+                if mu > threshold:
+                    above += 1
+                    if mu > top:  # strictly: the first of equal measures stays, as np.argmax
+                        top = mu
+                        top_pair = p
     if above > 0:
         wp.atomic_add(outlier_count, 0, above)
         wp.atomic_max(largest, 0, top)
-        if first == 0 and last == count:
+        if first == 0 and last == features:
             strongest[0] = top_pair
 
 
 @wp.kernel
 def first_strongest(
     pair_measure: wp.array(dtype=float),
-    pair_count: wp.array(dtype=wp.int32),
+    feature_pair_start: wp.array(dtype=wp.int32),
+    feature_row_max: wp.array(dtype=float),
     outlier_count: wp.array(dtype=wp.int32),
     largest: wp.array(dtype=float),
     min_outliers: int,
-    chunk: int,
+    rows: int,
     strongest: wp.array(dtype=wp.int32),
 ):
     """The first pair whose measure is ``largest[0]`` (as ``np.argmax``) into ``strongest[0]``
-    (set it to the pair count before), unless :func:`count_outliers` found it."""
-    if outlier_count[0] < min_outliers or strongest[0] < pair_count[0]:
+    (set it above the packed pairs before), unless :func:`count_outliers` found it."""
+    features = feature_row_max.shape[0]
+    if outlier_count[0] < min_outliers or strongest[0] < feature_pair_start[features]:
         return
-    first = wp.tid() * chunk
-    last = wp.min(first + chunk, pair_count[0])
-    for p in range(first, last):
-        if pair_measure[p] == largest[0]:
-            wp.atomic_min(strongest, 0, p)
-            return
+    first = wp.tid() * rows
+    last = wp.min(first + rows, features)
+    top = largest[0]
+    for l in range(first, last):
+        if feature_row_max[l] == top:
+            for p in range(feature_pair_start[l], feature_pair_start[l + 1]):
+                if pair_measure[p] == top:
+                    wp.atomic_min(strongest, 0, p)
+                    return
 
 
 @wp.kernel
 def outlier_cluster(
     pair_measure: wp.array(dtype=float),
     pair_midpoint: wp.array(dtype=wp.vec3),
-    pair_count: wp.array(dtype=wp.int32),
+    feature_pair_start: wp.array(dtype=wp.int32),
+    feature_row_max: wp.array(dtype=float),
     threshold: wp.array(dtype=float),
     outlier_count: wp.array(dtype=wp.int32),
     strongest: wp.array(dtype=wp.int32),
     min_outliers: int,
     reach: float,
-    chunk: int,
+    rows: int,
     cluster_weighted_sum: wp.array(dtype=wp.vec4),
     cluster_count: wp.array(dtype=wp.int32),
 ):
@@ -154,21 +168,22 @@ def outlier_cluster(
     ``cluster_weighted_sum[0]`` (clear both before)."""
     if outlier_count[0] < min_outliers:
         return
-    count = pair_count[0]
     centre = pair_midpoint[strongest[0]]
-    first = wp.tid() * chunk
-    last = wp.min(first + chunk, count)
+    limit = threshold[0]
+    first = wp.tid() * rows
+    last = wp.min(first + rows, feature_row_max.shape[0])
     found = int(0)
     total = wp.vec4(0.0)
-    limit = threshold[0]
-    for p in range(first, last):
-        mu = pair_measure[p]
-        if mu > limit:  # the outliers only: their midpoints alone are read
-            x = pair_midpoint[p]
-            offset = x - centre
-            if wp.dot(offset, offset) <= reach * reach:
-                found += 1
-                total += wp.vec4(mu * x[0], mu * x[1], mu * x[2], mu)
+    for l in range(first, last):
+        if feature_row_max[l] > limit:  # the rows holding an outlier only
+            for p in range(feature_pair_start[l], feature_pair_start[l + 1]):
+                mu = pair_measure[p]
+                if mu > limit:
+                    x = pair_midpoint[p]
+                    offset = x - centre
+                    if wp.dot(offset, offset) <= reach * reach:
+                        found += 1
+                        total += wp.vec4(mu * x[0], mu * x[1], mu * x[2], mu)
     if found > 0:
         wp.atomic_add(cluster_count, 0, found)
         wp.atomic_add(cluster_weighted_sum, 0, total)

@@ -37,33 +37,38 @@ def test_measure_outliers_and_cluster_equal_numpy(use_target, split):
     q = (target if use_target else current).astype(np.float64)
     expected = np.linalg.norm(d[l] - d[m], axis=1) * np.linalg.norm(q[l] - q[m], axis=1) * inverse
 
-    rows, chunk = (F, P) if split == "one thread" else (7, 5)
-    mu, total, top = wp.zeros(P, dtype=float), wp.zeros(1, dtype=float), wp.zeros(1, dtype=float)
-    count = wp.array([P], dtype=wp.int32)
-    wp.launch(k.pair_measure, -(-F // rows), inputs=[wp.array(start, dtype=wp.int32), wp.array(m, dtype=wp.int32),
-                                                     wp.array(inverse), wp.array(current, dtype=wp.vec3),
-                                                     wp.array(target, dtype=wp.vec3), use_target, rows],
-              outputs=[mu, total, top])
-    np.testing.assert_allclose(mu.numpy(), expected, rtol=1e-5)
+    rows = F if split == "one thread" else 7
+    threads = -(-F // rows)
+    mu, row_max = wp.zeros(P, dtype=float), wp.zeros(F, dtype=float)
+    total, top = wp.zeros(1, dtype=float), wp.zeros(1, dtype=float)
+    start_wp = wp.array(start, dtype=wp.int32)
+    wp.launch(k.pair_measure, threads, inputs=[start_wp, wp.array(m, dtype=wp.int32), wp.array(inverse),
+                                               wp.array(current, dtype=wp.vec3), wp.array(target, dtype=wp.vec3),
+                                               use_target, rows],
+              outputs=[mu, row_max, total, top])
+    values = mu.numpy()
+    np.testing.assert_allclose(values, expected, rtol=1e-5)
     assert total.numpy()[0] == pytest.approx(expected.sum(), rel=1e-5)
-    assert top.numpy()[0] == mu.numpy().max()
+    assert top.numpy()[0] == values.max()
+    np.testing.assert_array_equal(row_max.numpy(), [values[a:b].max(initial=0.0) for a, b in zip(start, start[1:])])
 
     threshold, outliers = wp.zeros(1, dtype=float), wp.zeros(1, dtype=wp.int32)
     largest, strongest = wp.zeros(1, dtype=float), wp.array([P], dtype=wp.int32)
-    threads = -(-P // chunk)
-    wp.launch(k.count_outliers, threads, inputs=[mu, count, count, total, top, tau, min_measure, chunk],
+    count = wp.array([P], dtype=wp.int32)
+    wp.launch(k.count_outliers, threads, inputs=[mu, start_wp, row_max, count, total, top, tau, min_measure, rows],
               outputs=[threshold, outliers, largest, strongest])
-    wp.launch(k.first_strongest, threads, inputs=[mu, count, outliers, largest, 3, chunk], outputs=[strongest])
-    values = mu.numpy()
+    wp.launch(k.first_strongest, threads, inputs=[mu, start_wp, row_max, outliers, largest, 3, rows],
+              outputs=[strongest])
     limit = tau * float(total.numpy()[0]) / P
     assert threshold.numpy()[0] == pytest.approx(limit, rel=1e-6)
     above = values > threshold.numpy()[0]
     assert outliers.numpy()[0] == above.sum() >= 3
-    assert strongest.numpy()[0] == np.argmax(values)
+    assert largest.numpy()[0] == values.max() and strongest.numpy()[0] == np.argmax(values)
 
     weighted, found = wp.zeros(1, dtype=wp.vec4), wp.zeros(1, dtype=wp.int32)
     wp.launch(k.outlier_cluster, threads,
-              inputs=[mu, wp.array(midpoint, dtype=wp.vec3), count, threshold, outliers, strongest, 3, reach, chunk],
+              inputs=[mu, wp.array(midpoint, dtype=wp.vec3), start_wp, row_max, threshold, outliers, strongest, 3,
+                      reach, rows],
               outputs=[weighted, found])
     near = above & (np.sum((midpoint - midpoint[np.argmax(values)]) ** 2, axis=1) <= reach * reach)
     assert found.numpy()[0] == near.sum() >= 1
@@ -80,11 +85,12 @@ def test_measure_outliers_and_cluster_equal_numpy(use_target, split):
 
 def test_without_an_outlier_no_pair_is_counted():
     mu = wp.array(np.full(50, 2.0, dtype=np.float32))
-    count = wp.array([50], dtype=wp.int32)
-    total, top = wp.array([100.0], dtype=float), wp.array([2.0], dtype=float)
+    start = wp.array(np.arange(0, 51, 5), dtype=wp.int32)  # 10 features, 5 pairs each
+    row_max = wp.array(np.full(10, 2.0, dtype=np.float32))
+    count, total, top = wp.array([50], dtype=wp.int32), wp.array([100.0], dtype=float), wp.array([2.0], dtype=float)
     threshold, outliers = wp.zeros(1, dtype=float), wp.zeros(1, dtype=wp.int32)
     largest, strongest = wp.zeros(1, dtype=float), wp.array([50], dtype=wp.int32)
-    wp.launch(k.count_outliers, 1, inputs=[mu, count, count, total, top, 1.5, 0.0, 50],
+    wp.launch(k.count_outliers, 1, inputs=[mu, start, row_max, count, total, top, 1.5, 0.0, 10],
               outputs=[threshold, outliers, largest, strongest])
     assert threshold.numpy()[0] == pytest.approx(3.0)
     assert outliers.numpy()[0] == 0 and strongest.numpy()[0] == 50

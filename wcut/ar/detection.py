@@ -114,11 +114,13 @@ class CutPoint:
 class CutDetector:
     """The neighbour graph of the features and the cut polygon growing in it.
 
-    The measure of every live pair, its mean and the outlier count are one captured graph of
-    the kernels of ``wcut.kernels.cut_detection`` (its inputs copied into arrays allocated
-    once): the detection's cost per frame is two copies, that graph's replay and a read. The
-    live pairs are packed for the kernels again only when the graph or the active features
-    change.
+    The measure of every live pair, its mean, the outliers, their cluster, the cut point and
+    the pairs it removes are one captured graph of the kernels of
+    ``wcut.kernels.cut_detection`` (its inputs copied into arrays allocated once): the
+    detection's cost per frame is two copies, that graph's replay and a few reads. The live
+    pairs are packed for the kernels at construction; pairs that leave (a feature lost, a cut
+    point) are taken out in place, and the live pairs are packed again only when a feature
+    comes back or fewer than :data:`REPACK_BELOW` of the packed ones are left.
 
     Args:
         rest_features: (F, 3) initial virtual features ``p^0`` (m), material points.
@@ -172,8 +174,11 @@ class CutDetector:
     def remove_pairs(self, pairs) -> None:
         """Take pairs (indices into :attr:`pairs`) out of the graph for good, as a cut point
         does with the pairs through its sphere."""
-        gone = np.asarray(pairs, dtype=np.int64).reshape(-1)
-        gone = np.unique(gone[self._alive[gone]])
+        self._remove(np.unique(np.asarray(pairs, dtype=np.int64).reshape(-1)))
+
+    def _remove(self, pairs: np.ndarray) -> None:
+        """:meth:`remove_pairs` of distinct pairs."""
+        gone = pairs[self._alive[pairs]]
         self._alive[gone] = False
         self._drop_pairs(gone)
         if self._measured < REPACK_BELOW * self._packed:
@@ -183,10 +188,10 @@ class CutDetector:
         from ..kernels import cut_detection as k
 
         d, P, F = self._device, len(self.pairs), len(self.rest_features)
+        # every array the graphs read or write is held here: a captured graph keeps only pointers
         self._pair_start_wp = wp.zeros(F + 1, dtype=wp.int32, device=d)
         self._pair_other_wp = wp.zeros(P, dtype=wp.int32, device=d)
         self._inverse_length_wp = wp.zeros(P, dtype=float, device=d)
-        self._count_wp = wp.zeros(1, dtype=wp.int32, device=d)  # packed pairs
         self._measured_wp = wp.zeros(1, dtype=wp.int32, device=d)  # of which not removed since the packing
         self._current_wp = wp.zeros(F, dtype=wp.vec3, device=d)
         self._target_wp = wp.zeros(F, dtype=wp.vec3, device=d)
@@ -196,16 +201,19 @@ class CutDetector:
         self._midpoint_wp = wp.zeros(P, dtype=wp.vec3, device=d)
         self._threshold_wp = wp.zeros(1, dtype=float, device=d)
         self._outliers_wp = wp.zeros(1, dtype=wp.int32, device=d)
-        largest, strongest = wp.zeros(1, dtype=float, device=d), wp.zeros(1, dtype=wp.int32, device=d)
+        largest = self._largest_wp = wp.zeros(1, dtype=float, device=d)
+        strongest = self._strongest_wp = wp.zeros(1, dtype=wp.int32, device=d)
+        row_max = self._row_max_wp = wp.zeros(F, dtype=float, device=d)
         self._point_wp = wp.zeros(1, dtype=wp.vec3d, device=d)
         self._near_wp = wp.zeros(P, dtype=wp.int8, device=d)
-        self._pair_rest_wp = (wp.array(self._midpoints, dtype=wp.vec3d, device=d),  # held: the graph reads them
+        self._pair_rest_wp = (wp.array(self._midpoints, dtype=wp.vec3d, device=d),
                               wp.array(0.5 * (self.rest_features[self._m] - self.rest_features[self._l]),
                                        dtype=wp.vec3d, device=d))
         self._cluster_sum_wp = wp.zeros(1, dtype=wp.vec4, device=d)
         self._cluster_count_wp = wp.zeros(1, dtype=wp.int32, device=d)
         chunk = max(P, 1) if d.is_cpu else 1  # the CPU runs a launch's threads in turn: one thread, one pass
-        threads, p = max(-(-P // chunk), 1), self.params
+        rows = max(F, 1) if d.is_cpu else 1
+        threads, row_threads, p = max(-(-P // chunk), 1), max(-(-F // rows), 1), self.params
         reach = p.cluster_radius or 2.0 * p.cut_point_radius
         # one graph per frame: on the CPU its replay costs about a microsecond of Python, against
         # some 5 us per recorded launch and more per numpy call when the loop has cooled the caches
@@ -214,21 +222,20 @@ class CutDetector:
                           self._cluster_count_wp):
                 array.zero_()
             strongest.fill_(P)
-            rows = max(F, 1) if d.is_cpu else 1
-            wp.launch(k.pair_measure, max(-(-F // rows), 1), device=d,
+            wp.launch(k.pair_measure, row_threads, device=d,
                       inputs=[self._pair_start_wp, self._pair_other_wp, self._inverse_length_wp, self._current_wp,
                               self._target_wp, int(p.measure == "target"), rows],
-                      outputs=[self._mu_wp, self._sum_wp, self._max_wp])
-            wp.launch(k.count_outliers, threads, device=d,
-                      inputs=[self._mu_wp, self._count_wp, self._measured_wp, self._sum_wp, self._max_wp, p.tau,
-                              p.min_measure, chunk],
+                      outputs=[self._mu_wp, row_max, self._sum_wp, self._max_wp])
+            wp.launch(k.count_outliers, row_threads, device=d,
+                      inputs=[self._mu_wp, self._pair_start_wp, row_max, self._measured_wp, self._sum_wp,
+                              self._max_wp, p.tau, p.min_measure, rows],
                       outputs=[self._threshold_wp, self._outliers_wp, largest, strongest])
-            wp.launch(k.first_strongest, threads, device=d,
-                      inputs=[self._mu_wp, self._count_wp, self._outliers_wp, largest, p.min_outliers, chunk],
-                      outputs=[strongest])
-            wp.launch(k.outlier_cluster, threads, device=d,
-                      inputs=[self._mu_wp, self._midpoint_wp, self._count_wp, self._threshold_wp, self._outliers_wp,
-                              strongest, p.min_outliers, reach, chunk],
+            wp.launch(k.first_strongest, row_threads, device=d,
+                      inputs=[self._mu_wp, self._pair_start_wp, row_max, self._outliers_wp, largest, p.min_outliers,
+                              rows], outputs=[strongest])
+            wp.launch(k.outlier_cluster, row_threads, device=d,
+                      inputs=[self._mu_wp, self._midpoint_wp, self._pair_start_wp, row_max, self._threshold_wp,
+                              self._outliers_wp, strongest, p.min_outliers, reach, rows],
                       outputs=[self._cluster_sum_wp, self._cluster_count_wp])
             # the pairs through the sphere around a new cut point: all of them, in the graph or
             # not (a feature tracked again must not bring back a pair through the cut)
@@ -240,7 +247,7 @@ class CutDetector:
         self._graph = capture.graph
         # CPU arrays are shared with numpy: inputs are written in place and results read without a call
         self._views = {id(a): a.numpy() for a in (self._pair_start_wp, self._pair_other_wp,
-                                                  self._inverse_length_wp, self._count_wp, self._measured_wp,
+                                                  self._inverse_length_wp, self._measured_wp,
                                                   self._current_wp, self._target_wp, self._mu_wp, self._sum_wp,
                                                   self._midpoint_wp, self._threshold_wp, self._outliers_wp,
                                                   self._cluster_sum_wp, self._cluster_count_wp, self._point_wp,
@@ -254,10 +261,10 @@ class CutDetector:
 
     def _pack_live(self, active: np.ndarray) -> None:
         """Pack the live pairs (in the graph, both features active) at the front of the
-        kernel's pair arrays when they changed since the last packing. Pairs that only left
-        (features dropped, pairs removed around a cut point: every change of a video but the
-        first frame's) are taken out in place by :meth:`_drop_pairs`, until fewer than
-        :data:`REPACK_BELOW` of the packed pairs are left; the rest packs again."""
+        kernel's pair arrays when the active features changed since the last packing. The
+        pairs of features dropped since are taken out in place by :meth:`_drop_pairs` (every
+        change of a video but the first frame's), until fewer than :data:`REPACK_BELOW` of the
+        packed pairs are left; a feature that comes back packs them again."""
         key = active.tobytes()  # a few us; np.array_equal costs ten times more
         if key == self._live_key:
             return
@@ -265,7 +272,7 @@ class CutDetector:
         only_left = self._live_key is not None and not active[changed].any()
         if only_left:  # the pairs of the features dropped since
             start, incident = self._incident_start, self._incident
-            self._drop_pairs(np.concatenate([incident[start[f]:start[f + 1]] for f in changed]))
+            self._drop_pairs(np.concatenate([incident[start[f]:start[f + 1]] for f in changed]), repeated=True)
         if not only_left or self._measured < REPACK_BELOW * self._packed:
             live = np.flatnonzero(self._alive & active[self._l] & active[self._m])
             n = self._measured = self._packed = len(live)
@@ -280,18 +287,19 @@ class CutDetector:
             midpoints[:n] = self._midpoints[live]
             for array, value in ((self._pair_start_wp, start), (self._pair_other_wp, other),
                                  (self._inverse_length_wp, self._inverse), (self._midpoint_wp, midpoints),
-                                 (self._count_wp, np.array([n])), (self._measured_wp, np.array([n]))):
+                                 (self._measured_wp, np.array([n])),):
                 self._copy_in(array, value)
         self._live_key, self._active = key, active.copy()
 
-    def _drop_pairs(self, pairs: np.ndarray) -> None:
+    def _drop_pairs(self, pairs: np.ndarray, repeated: bool = False) -> None:
         """Take pairs out of the packed ones in place: their ``1 / delta^0`` becomes 0, so
-        they measure 0, and the mean's count drops. (A pair may be given twice.) Few numpy
-        calls: each costs some 10 us in the loop, its caches cooled by tracking."""
+        they measure 0, and the mean's count drops. ``repeated``: a pair may be given twice.
+        Few numpy calls: each costs some 10-30 us in the loop, its caches cooled by tracking."""
         slots = self._slot[pairs]
         slots = slots[slots >= 0]
         if len(slots):
-            slots = np.unique(slots)
+            if repeated:
+                slots = np.unique(slots)
             self._slot[pairs] = -1
             self._measured -= len(slots)
             view = self._views.get(id(self._inverse_length_wp))
@@ -363,7 +371,7 @@ class CutDetector:
         if near < self.params.min_outliers:
             return None
         point = np.array(self._read(self._point_wp)[0], dtype=np.float64)
-        self.remove_pairs(np.flatnonzero(self._read(self._near_wp)))  # marked by the graph's last kernel
+        self._remove(np.flatnonzero(self._read(self._near_wp)))  # marked by the graph's last kernel
         return self._extend(point, near)
 
     def _extend(self, point: np.ndarray, outliers: int) -> CutPoint:
