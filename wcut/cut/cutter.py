@@ -509,12 +509,12 @@ class Cutter:
         if rows:
             weights = np.array(means)
             corners = self.coordinates()[np.array([tets[i] for i in rows])]  # (R, 4, 3)
-            p = np.einsum("rk,rkj->rj", weights, corners)
+            p = np.array([w @ c for w, c in zip(weights, corners)])  # as _onto_surface computes them
             origin, normal = surface.tangent_planes(p)
             on = (np.abs(np.einsum("rj,rj->r", normal, p - origin)) <= self.tolerance).tolist()
             for r, i in enumerate(rows):
                 w = weights[r]
-                results[i] = (w if on[r] else self._onto_surface(surface, corners[r], w)), True
+                results[i] = (w if on[r] else self._onto_surface(surface, corners[r], w, (origin[r], normal[r]))), True
         return results
 
     def _extension_point(self, surface: CutSurface, sampling: _Sampling, tet: list[int], points: list) -> np.ndarray:
@@ -534,9 +534,11 @@ class Cutter:
             weights = 0.75 * weights + 0.0625
         return weights
 
-    def _onto_surface(self, surface: CutSurface, corners: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    def _onto_surface(self, surface: CutSurface, corners: np.ndarray, weights: np.ndarray,
+                      plane: tuple | None = None) -> np.ndarray:
         """Barycentric weights over ``corners`` (4 of an element or 3 of a face, m) of the
         point ``weights @ corners`` moved onto a curved S within the element or face.
+        ``plane``: S's tangent plane (point, unit normal) at that point when known.
 
         The barycentre of crossings is on S only where S is flat; a vertex placed off S is not
         on the cut for the next cut, which would split its elements again. So the point is
@@ -545,21 +547,25 @@ class Cutter:
         would halve the point's smallest weight (the operators' quality check would refuse
         flatter elements)."""
         p = weights @ corners
-        if type(surface) is Plane:  # its tangent plane, without building (1, 3) arrays
+        if plane is not None:
+            origin, normal = plane
+        elif type(surface) is Plane:  # its tangent plane, without building (1, 3) arrays
             origin, normal = surface.point, surface.normal
         else:
             origin, normal = (a[0] for a in surface.tangent_planes(p[None]))
-        if abs(float(normal @ (p - origin))) <= self.tolerance:
+        gap = float(normal @ (p - origin))
+        if abs(gap) <= self.tolerance:
             return weights  # on S already (S flat here)
         span = None
         if len(corners) == 3:
             span = np.cross(corners[1] - corners[0], corners[2] - corners[0])
             span /= np.linalg.norm(span)
-        for _ in range(4):
-            origin, normal = (a[0] for a in surface.tangent_planes(p[None]))
-            gap = float(normal @ (p - origin))
-            if abs(gap) <= self.tolerance:
-                break
+        for i in range(4):
+            if i:  # the first step starts from the plane found above (a query costs some 1 ms)
+                origin, normal = (a[0] for a in surface.tangent_planes(p[None]))
+                gap = float(normal @ (p - origin))
+                if abs(gap) <= self.tolerance:
+                    break
             step = normal if span is None else normal - (normal @ span) * span
             along = float(normal @ step)
             if along < 0.1:
