@@ -11,8 +11,8 @@ there are enough outliers, the cluster around the strongest one: :func:`first_st
 :func:`pairs_near_point`, which finds the pairs it removes.
 
 Each thread handles a run of ``rows`` consecutive features (their rows of pairs; of ``chunk``
-pairs in :func:`pairs_near_point`) and adds its partial sums once: on the CPU a launch runs its threads one after another, and the caller
-gives one thread all of them. :func:`pair_measure` keeps each row's largest measure, so the
+pairs in :func:`pairs_near_point`) and adds its partial sums once: on the CPU a launch runs
+its threads one after another, and the caller gives one thread all of them. :func:`pair_measure` keeps each row's largest measure, so the
 later kernels read only the rows that hold an outlier (a frame without a cut has a few).
 """
 
@@ -133,9 +133,11 @@ def first_strongest(
     strongest: wp.array(dtype=wp.int32),
 ):
     """The first pair whose measure is ``largest[0]`` (as ``np.argmax``) into ``strongest[0]``
-    (set it above the packed pairs before), unless :func:`count_outliers` found it."""
+    (set it above the packed pairs before), unless one thread had every row and
+    :func:`count_outliers` found it. (Whether it did is decided by ``rows``, not by reading
+    ``strongest``, which other threads of this launch are lowering.)"""
     features = feature_row_max.shape[0]
-    if outlier_count[0] < min_outliers or strongest[0] < feature_pair_start[features]:
+    if outlier_count[0] < min_outliers or rows >= features:  # one thread saw every row: found
         return
     first = wp.tid() * rows
     last = wp.min(first + rows, features)

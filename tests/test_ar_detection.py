@@ -67,6 +67,11 @@ def test_kernel_measure_equals_the_numpy_reference(variant):
         assert count == int((expected >= 0).sum()) and mean == pytest.approx(expected[expected >= 0].mean(), rel=1e-4)
         repacked = det._packed != packed
         assert repacked == (count < REPACK_BELOW * packed) and (repacked or keep > 0.5)
+    active[rng.uniform(size=len(p0)) < 0.3] = True  # features tracked again: their pairs come back
+    mu, count, mean = det.measure(current, target, active)
+    expected = reference_measure(p0, det.pairs, current, target, active, det.alive, variant)
+    np.testing.assert_allclose(mu, expected, rtol=1e-4, atol=1e-9)
+    assert count == int((expected >= 0).sum()) and mean == pytest.approx(expected[expected >= 0].mean(), rel=1e-4)
 
 
 def test_neighbour_graph_is_every_pair_within_the_radius():

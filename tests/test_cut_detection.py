@@ -83,6 +83,26 @@ def test_measure_outliers_and_cluster_equal_numpy(use_target, split):
     np.testing.assert_array_equal(point.numpy()[0], total[:3] / total[3])
 
 
+@pytest.mark.parametrize("rows", [4, 1])
+def test_the_first_of_equal_largest_measures_is_the_strongest(rows):
+    start = np.arange(0, 21, 5)  # 4 features, 5 pairs each
+    values = np.full(20, 1.0, dtype=np.float32)
+    values[[7, 13, 16]] = 9.0  # equal largest measures in rows 1, 2 and 3
+    mu, start_wp = wp.array(values), wp.array(start, dtype=wp.int32)
+    row_max = wp.array([values[a:b].max() for a, b in zip(start, start[1:])], dtype=float)
+    count, total = wp.array([20], dtype=wp.int32), wp.array([values.sum()], dtype=float)
+    top = wp.array([9.0], dtype=float)
+    threshold, outliers = wp.zeros(1, dtype=float), wp.zeros(1, dtype=wp.int32)
+    largest, strongest = wp.zeros(1, dtype=float), wp.array([20], dtype=wp.int32)
+    threads = -(-4 // rows)
+    wp.launch(k.count_outliers, threads, inputs=[mu, start_wp, row_max, count, total, top, 2.0, 0.0, rows],
+              outputs=[threshold, outliers, largest, strongest])
+    wp.launch(k.first_strongest, threads, inputs=[mu, start_wp, row_max, outliers, largest, 3, rows],
+              outputs=[strongest])
+    assert outliers.numpy()[0] == 3 and largest.numpy()[0] == 9.0
+    assert strongest.numpy()[0] == 7 == np.argmax(values)
+
+
 def test_without_an_outlier_no_pair_is_counted():
     mu = wp.array(np.full(50, 2.0, dtype=np.float32))
     start = wp.array(np.arange(0, 51, 5), dtype=wp.int32)  # 10 features, 5 pairs each
