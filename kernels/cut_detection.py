@@ -12,8 +12,9 @@ there are enough outliers, the cluster around the strongest one: :func:`first_st
 
 Each thread handles a run of ``rows`` consecutive features (their rows of pairs; of ``chunk``
 pairs in :func:`pairs_near_point`) and adds its partial sums once: on the CPU a launch runs
-its threads one after another, and the caller gives one thread all of them. :func:`pair_measure` keeps each row's largest measure, so the
-later kernels read only the rows that hold an outlier (a frame without a cut has a few).
+its threads one after another, and the caller gives one thread all of them.
+:func:`pair_measure` keeps each row's largest measure, so the later kernels read only the rows
+that hold an outlier (a frame without a cut has a few).
 """
 
 import warp as wp
