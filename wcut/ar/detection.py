@@ -351,8 +351,9 @@ class CutDetector:
     def update(self, current, target, active) -> CutPoint | None:
         """One detection step: the new cut point, or None.
 
-        The measure, its mean, the outliers and their cluster around the strongest one are one
-        graph launch; Python reads a few numbers, and works only when a cut point is put.
+        The measure, its mean, the outliers, their cluster around the strongest one, the cut
+        point and the pairs it removes are one graph launch; Python reads a few numbers, and
+        works only when a cut point is put.
 
         Args:
             current: (F, 3) features on the model ``p^t`` (m).
