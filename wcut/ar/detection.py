@@ -181,8 +181,8 @@ class CutDetector:
         gone = pairs[self._alive[pairs]]
         self._alive[gone] = False
         self._drop_pairs(gone)
-        if self._measured < REPACK_BELOW * self._packed:
-            self._live_key = None  # too few left: the next frame packs again
+        if self._sparse:
+            self._live_key = None  # the next frame packs again
 
     def _setup_kernel(self) -> None:
         from ..kernels import cut_detection as k
@@ -273,7 +273,7 @@ class CutDetector:
         if only_left:  # the pairs of the features dropped since
             start, incident = self._incident_start, self._incident
             self._drop_pairs(np.concatenate([incident[start[f]:start[f + 1]] for f in changed]), repeated=True)
-        if not only_left or self._measured < REPACK_BELOW * self._packed:
+        if not only_left or self._sparse:
             live = np.flatnonzero(self._alive & active[self._l] & active[self._m])
             n = self._measured = self._packed = len(live)
             self._slot[:] = -1
@@ -287,9 +287,14 @@ class CutDetector:
             midpoints[:n] = self._midpoints[live]
             for array, value in ((self._pair_start_wp, start), (self._pair_other_wp, other),
                                  (self._inverse_length_wp, self._inverse), (self._midpoint_wp, midpoints),
-                                 (self._measured_wp, np.array([n])),):
+                                 (self._measured_wp, np.array([n]))):
                 self._copy_in(array, value)
         self._live_key, self._active = key, active.copy()
+
+    @property
+    def _sparse(self) -> bool:
+        """Whether fewer than :data:`REPACK_BELOW` of the packed pairs are still measured."""
+        return self._measured < REPACK_BELOW * self._packed
 
     def _drop_pairs(self, pairs: np.ndarray, repeated: bool = False) -> None:
         """Take pairs out of the packed ones in place: their ``1 / delta^0`` becomes 0, so
