@@ -114,13 +114,14 @@ class CutPoint:
 class CutDetector:
     """The neighbour graph of the features and the cut polygon growing in it.
 
-    The measure of every live pair, its mean, the outliers, their cluster, the cut point and
-    the pairs it removes are one captured graph of the kernels of
-    ``wcut.kernels.cut_detection`` (its inputs copied into arrays allocated once): the
-    detection's cost per frame is two copies, that graph's replay and a few reads. The live
-    pairs are packed for the kernels at construction; pairs that leave (a feature lost, a cut
-    point) are taken out in place, and the live pairs are packed again only when a feature
-    comes back or fewer than :data:`REPACK_BELOW` of the packed ones are left.
+    The pairs of features that stopped pulling, the measure of every live pair, its mean, the
+    outliers, their cluster, the cut point and the pairs it removes are one captured graph of
+    the kernels of ``wcut.kernels.cut_detection`` (its inputs copied into arrays allocated
+    once): the detection's cost per frame is three copies (positions, targets, the features
+    that pull), that graph's replay and a few reads. The live pairs are packed for the
+    kernels at construction; pairs that leave (a feature lost, a cut point) are taken out in
+    place, and the live pairs are packed again only when a feature comes back or fewer than
+    :data:`REPACK_BELOW` of the packed ones are left.
 
     Args:
         rest_features: (F, 3) initial virtual features ``p^0`` (m), material points.
@@ -145,12 +146,6 @@ class CutDetector:
         self.pairs = self.pairs[np.lexsort((self.pairs[:, 1], self.pairs[:, 0]))]
         self._l, self._m = self.pairs[:, 0].copy(), self.pairs[:, 1].copy()
         self.rest_length = np.linalg.norm(p0[self._l] - p0[self._m], axis=1)
-        self._alive = self.rest_length > 0  # coincident features would divide by zero in eq. 7.10
-        # the pairs of each feature (feature f: _incident[_incident_start[f]:_incident_start[f + 1]])
-        ends = np.concatenate([self._l, self._m])
-        order = np.argsort(ends, kind="stable")
-        self._incident = order % max(len(self.pairs), 1)
-        self._incident_start = np.searchsorted(ends[order], np.arange(len(p0) + 1)).tolist()
         self._midpoints = 0.5 * (p0[self._l] + p0[self._m])
         self._device = wp.get_device(device)
         self._setup_kernel()
@@ -180,21 +175,34 @@ class CutDetector:
         """:meth:`remove_pairs` of distinct pairs."""
         gone = pairs[self._alive[pairs]]
         self._alive[gone] = False
+        if not self._views:  # a copy: write it back
+            self._copy_in(self._alive_wp, self._alive)
         self._drop_pairs(gone)
-        if self._sparse:
-            self._live_key = None  # the next frame packs again
 
     def _setup_kernel(self) -> None:
         from ..kernels import cut_detection as k
 
         d, P, F = self._device, len(self.pairs), len(self.rest_features)
+        # the pairs of each feature: feature f has incident[incident_start[f]:incident_start[f + 1]]
+        ends = np.concatenate([self._l, self._m])
+        order = np.argsort(ends, kind="stable")
         # every array the graphs read or write is held here: a captured graph keeps only pointers
+        self._active_wp = wp.zeros(F, dtype=wp.bool, device=d)
+        # the pairs in the graph; coincident features would divide by zero in eq. 7.10
+        self._alive_wp = wp.array(self.rest_length > 0, dtype=wp.bool, device=d)
+        self._mean_wp = wp.zeros(1, dtype=float, device=d)
+        self._packed_active_wp = wp.zeros(F, dtype=wp.bool, device=d)  # the features packed for
+        self._incident_start_wp = wp.array(np.searchsorted(ends[order], np.arange(F + 1)), dtype=wp.int32, device=d)
+        self._incident_wp = wp.array(order % max(P, 1), dtype=wp.int32, device=d)
+        self._slot_wp = wp.full(P, -1, dtype=wp.int32, device=d)  # pair -> its packed index, -1: not measured
+        self._repack_wp = wp.zeros(1, dtype=wp.int32, device=d)
         self._pair_start_wp = wp.zeros(F + 1, dtype=wp.int32, device=d)
         self._pair_other_wp = wp.zeros(P, dtype=wp.int32, device=d)
         self._inverse_length_wp = wp.zeros(P, dtype=float, device=d)
         self._measured_wp = wp.zeros(1, dtype=wp.int32, device=d)  # of which not removed since the packing
         self._current_wp = wp.zeros(F, dtype=wp.vec3, device=d)
         self._target_wp = wp.zeros(F, dtype=wp.vec3, device=d)
+        self._vectors_wp = wp.zeros(F, dtype=k.mat23, device=d)
         self._mu_wp = wp.zeros(P, dtype=float, device=d)
         self._sum_wp = wp.zeros(1, dtype=float, device=d)
         self._max_wp = wp.zeros(1, dtype=float, device=d)
@@ -205,7 +213,6 @@ class CutDetector:
         strongest = self._strongest_wp = wp.zeros(1, dtype=wp.int32, device=d)
         row_max = self._row_max_wp = wp.zeros(F, dtype=float, device=d)
         self._point_wp = wp.zeros(1, dtype=wp.vec3d, device=d)
-        self._near_wp = wp.zeros(P, dtype=wp.int8, device=d)
         self._pair_rest_wp = (wp.array(self._midpoints, dtype=wp.vec3d, device=d),
                               wp.array(0.5 * (self.rest_features[self._m] - self.rest_features[self._l]),
                                        dtype=wp.vec3d, device=d))
@@ -215,21 +222,33 @@ class CutDetector:
         rows = max(F, 1) if d.is_cpu else 1
         threads, row_threads, p = max(-(-P // chunk), 1), max(-(-F // rows), 1), self.params
         reach = p.cluster_radius or 2.0 * p.cut_point_radius
-        # one graph per frame: on the CPU its replay costs about a microsecond of Python, against
-        # some 5 us per recorded launch and more per numpy call when the loop has cooled the caches
-        with wp.ScopedCapture(device=d) as capture:
-            for array in (self._sum_wp, self._max_wp, self._outliers_wp, largest, self._cluster_sum_wp,
-                          self._cluster_count_wp):
+
+        def launch_measure():
+            for array in (self._repack_wp, self._sum_wp, self._max_wp, self._mean_wp, self._outliers_wp, largest,
+                          self._cluster_sum_wp, self._cluster_count_wp):
                 array.zero_()
             strongest.fill_(P)
+            wp.launch(k.prepare_features, row_threads, device=d,
+                      inputs=[self._current_wp, self._target_wp, int(p.measure == "target"), self._active_wp,
+                              self._incident_start_wp, self._incident_wp, rows],
+                      outputs=[self._vectors_wp, self._packed_active_wp, self._slot_wp, self._inverse_length_wp,
+                               self._measured_wp, self._repack_wp])
             wp.launch(k.pair_measure, row_threads, device=d,
-                      inputs=[self._pair_start_wp, self._pair_other_wp, self._inverse_length_wp, self._current_wp,
-                              self._target_wp, int(p.measure == "target"), rows],
+                      inputs=[self._pair_start_wp, self._pair_other_wp, self._inverse_length_wp, self._vectors_wp,
+                              rows],
                       outputs=[self._mu_wp, row_max, self._sum_wp, self._max_wp])
             wp.launch(k.count_outliers, row_threads, device=d,
                       inputs=[self._mu_wp, self._pair_start_wp, row_max, self._measured_wp, self._sum_wp,
-                              self._max_wp, p.tau, p.min_measure, rows],
-                      outputs=[self._threshold_wp, self._outliers_wp, largest, strongest])
+                              self._max_wp, self._repack_wp, p.tau, p.min_measure, rows],
+                      outputs=[self._mean_wp, self._threshold_wp, self._outliers_wp, largest, strongest])
+
+        with wp.ScopedCapture(device=d) as capture:  # measure() inspects, it puts no cut point
+            launch_measure()
+        self._measure_graph = capture.graph
+        # one graph per frame: on the CPU its replay costs about a microsecond of Python, against
+        # some 5 us per recorded launch and more per numpy call when the loop has cooled the caches
+        with wp.ScopedCapture(device=d) as capture:
+            launch_measure()
             wp.launch(k.first_strongest, row_threads, device=d,
                       inputs=[self._mu_wp, self._pair_start_wp, row_max, self._outliers_wp, largest, p.min_outliers,
                               rows], outputs=[strongest])
@@ -237,95 +256,91 @@ class CutDetector:
                       inputs=[self._mu_wp, self._midpoint_wp, self._pair_start_wp, row_max, self._threshold_wp,
                               self._outliers_wp, strongest, p.min_outliers, reach, rows],
                       outputs=[self._cluster_sum_wp, self._cluster_count_wp])
-            # the pairs through the sphere around a new cut point: all of them, in the graph or
-            # not (a feature tracked again must not bring back a pair through the cut)
             wp.launch(k.cluster_cut_point, 1, device=d, inputs=[self._cluster_sum_wp, self._cluster_count_wp,
                                                                 p.min_outliers], outputs=[self._point_wp])
-            wp.launch(k.pairs_near_point, threads, device=d,
+            wp.launch(k.remove_pairs_near_point, threads, device=d,
                       inputs=[*self._pair_rest_wp, self._point_wp, float(p.cut_point_radius), self._cluster_count_wp,
-                              p.min_outliers, chunk], outputs=[self._near_wp])
+                              p.min_outliers, chunk],
+                      outputs=[self._alive_wp, self._slot_wp, self._inverse_length_wp, self._measured_wp])
         self._graph = capture.graph
         # CPU arrays are shared with numpy: inputs are written in place and results read without a call
-        self._views = {id(a): a.numpy() for a in (self._pair_start_wp, self._pair_other_wp,
-                                                  self._inverse_length_wp, self._measured_wp,
+        self._views = {id(a): a.numpy() for a in (self._active_wp, self._alive_wp, self._packed_active_wp,
+                                                  self._slot_wp, self._repack_wp, self._pair_start_wp,
+                                                  self._pair_other_wp, self._inverse_length_wp, self._measured_wp,
                                                   self._current_wp, self._target_wp, self._mu_wp, self._sum_wp,
-                                                  self._midpoint_wp, self._threshold_wp, self._outliers_wp,
-                                                  self._cluster_sum_wp, self._cluster_count_wp, self._point_wp,
-                                                  self._near_wp)} if d.is_cpu else {}
-        self._slot = np.full(P, -1, dtype=np.int64)  # pair -> its packed index, -1 if not packed or removed since
-        self._inverse = np.zeros(P, dtype=np.float32)  # the packed 1 / delta^0 (kept for a device without views)
+                                                  self._mean_wp, self._midpoint_wp, self._outliers_wp,
+                                                  self._cluster_count_wp, self._point_wp)} if d.is_cpu else {}
+        self._alive = self._read(self._alive_wp)  # CPU: the graph's array; else a copy kept in step
         self._packed = 0  # pairs packed
         self._measured = 0  # of which not removed since
-        self._active = np.zeros(F, dtype=bool)  # the features they were packed for
-        self._live_key: bytes | None = None  # the active features they were packed for, None: pack again
+        self._repack_next = False  # pack again before the next frame's graph
 
     def _pack_live(self, active: np.ndarray) -> None:
         """Pack the live pairs (in the graph, both features active) at the front of the
-        kernel's pair arrays when the active features changed since the last packing. The
-        pairs of features dropped since are taken out in place by :meth:`_drop_pairs` (every
-        change of a video but the first frame's), until fewer than :data:`REPACK_BELOW` of the
-        packed pairs are left; a feature that comes back packs them again."""
-        key = active.tobytes()  # a few us; np.array_equal costs ten times more
-        if key == self._live_key:
-            return
-        changed = np.flatnonzero(active != self._active).tolist()
-        only_left = self._live_key is not None and not active[changed].any()
-        if only_left:  # the pairs of the features dropped since
-            start, incident = self._incident_start, self._incident
-            self._drop_pairs(np.concatenate([incident[start[f]:start[f + 1]] for f in changed]), repeated=True)
-        if not only_left or self._sparse:
-            live = np.flatnonzero(self._alive & active[self._l] & active[self._m])
-            n = self._measured = self._packed = len(live)
-            self._slot[:] = -1
-            self._slot[live] = np.arange(n)
-            other = np.zeros(len(self.pairs), dtype=np.int32)
-            other[:n] = self._m[live]
-            start = np.searchsorted(self._l[live], np.arange(len(self.rest_features) + 1))  # pairs sorted by l
-            self._inverse[:] = 0.0
-            self._inverse[:n] = 1.0 / self.rest_length[live]
-            midpoints = np.zeros((len(self.pairs), 3), dtype=np.float32)
-            midpoints[:n] = self._midpoints[live]
-            for array, value in ((self._pair_start_wp, start), (self._pair_other_wp, other),
-                                 (self._inverse_length_wp, self._inverse), (self._midpoint_wp, midpoints),
-                                 (self._measured_wp, np.array([n]))):
-                self._copy_in(array, value)
-        self._live_key, self._active = key, active.copy()
+        kernel's pair arrays. Between packings the graph's first kernel takes the pairs of
+        features that stop pulling out in place (every change of a video but the first
+        frame's), and :meth:`_remove` those through a cut point's sphere; the pairs are packed
+        again when a feature comes back or fewer than :data:`REPACK_BELOW` of the packed ones
+        are left."""
+        P = len(self.pairs)
+        live = np.flatnonzero(self._alive & active[self._l] & active[self._m])
+        n = self._measured = self._packed = len(live)
+        slot = np.full(P, -1, dtype=np.int32)
+        slot[live] = np.arange(n)
+        other = np.zeros(P, dtype=np.int32)
+        other[:n] = self._m[live]
+        start = np.searchsorted(self._l[live], np.arange(len(self.rest_features) + 1))  # pairs sorted by l
+        inverse = np.zeros(P, dtype=np.float32)
+        inverse[:n] = 1.0 / self.rest_length[live]
+        midpoints = np.zeros((P, 3), dtype=np.float32)
+        midpoints[:n] = self._midpoints[live]
+        for array, value in ((self._pair_start_wp, start), (self._pair_other_wp, other),
+                             (self._inverse_length_wp, inverse), (self._midpoint_wp, midpoints),
+                             (self._slot_wp, slot), (self._packed_active_wp, active),
+                             (self._measured_wp, np.array([n]))):
+            self._copy_in(array, value)
+        self._repack_next = False
 
     @property
     def _sparse(self) -> bool:
         """Whether fewer than :data:`REPACK_BELOW` of the packed pairs are still measured."""
         return self._measured < REPACK_BELOW * self._packed
 
-    def _drop_pairs(self, pairs: np.ndarray, repeated: bool = False) -> None:
-        """Take pairs out of the packed ones in place: their ``1 / delta^0`` becomes 0, so
-        they measure 0, and the mean's count drops. ``repeated``: a pair may be given twice.
-        Few numpy calls: each costs some 10-30 us in the loop, its caches cooled by tracking."""
-        slots = self._slot[pairs]
+    def _drop_pairs(self, pairs: np.ndarray) -> None:
+        """Take distinct pairs out of the packed ones in place: their ``1 / delta^0`` becomes 0,
+        so they measure 0, and the mean's count drops."""
+        slot, inverse = self._read(self._slot_wp), self._read(self._inverse_length_wp)  # CPU: the arrays
+        slots = slot[pairs]
         slots = slots[slots >= 0]
-        if len(slots):
-            if repeated:
-                slots = np.unique(slots)
-            self._slot[pairs] = -1
-            self._measured -= len(slots)
-            view = self._views.get(id(self._inverse_length_wp))
-            if view is not None:  # only what changed
-                view[slots] = 0.0
-                self._views[id(self._measured_wp)][0] = self._measured
-            else:
-                self._inverse[slots] = 0.0
-                self._copy_in(self._inverse_length_wp, self._inverse)
-                self._copy_in(self._measured_wp, np.array([self._measured]))
+        if len(slots) == 0:
+            return
+        slot[pairs] = -1
+        inverse[slots] = 0.0
+        self._measured -= len(slots)
+        if not self._views:  # copies: write them back
+            self._copy_in(self._slot_wp, slot)
+            self._copy_in(self._inverse_length_wp, inverse)
+        self._copy_in(self._measured_wp, np.array([self._measured]))
+        self._repack_next = self._sparse
 
-    def _measure_live(self, current, target, active) -> int:
-        """Run the measure and the outlier count on the live pairs for these features;
-        returns their number."""
+    def _measure_live(self, current, target, active, graph) -> int:
+        """Replay ``graph`` (the measure and the outlier count on the live pairs for these
+        features, and the cut point if it is the update's); returns the live pairs' number."""
         if not (type(active) is np.ndarray and active.dtype == bool and active.ndim == 1):  # the loop's is
             active = np.asarray(active, dtype=bool).reshape(-1)
-        self._pack_live(active)
-        if self._measured:
-            self._copy_in(self._current_wp, current)
-            self._copy_in(self._target_wp, target)
-            wp.capture_launch(self._graph)
+        if len(active) != len(self.rest_features):
+            raise WcutError(f"cut detection: {len(active)} active flags for {len(self.rest_features)} features")
+        if self._repack_next:
+            self._pack_live(active)
+        self._copy_in(self._active_wp, active)
+        self._copy_in(self._current_wp, current)
+        self._copy_in(self._target_wp, target)
+        wp.capture_launch(graph)
+        if self._read(self._repack_wp)[0]:  # a feature tracked again: its pairs were not measured
+            self._pack_live(active)
+            wp.capture_launch(graph)
+        self._measured = int(self._read(self._measured_wp)[0])
+        self._repack_next = self._sparse
         return self._measured
 
     def measure(self, current, target, active) -> tuple[np.ndarray, int, float]:
@@ -333,11 +348,12 @@ class CutDetector:
         defined (out of the graph, or a feature not active); the number of live pairs and their
         mean measure. ``current`` (F, 3) are the features on the model ``p^t``, ``target``
         (F, 3) their targets ``p^1`` (m), ``active`` (F,) bool."""
-        n = self._measure_live(current, target, active)
+        n = self._measure_live(current, target, active, self._measure_graph)
         mu = np.full(len(self.pairs), -1.0, dtype=np.float32)
-        packed = self._slot >= 0
-        mu[packed] = self._read(self._mu_wp)[self._slot[packed]]
-        return mu, n, float(self._read(self._sum_wp)[0]) / n if n else 0.0
+        slot = self._read(self._slot_wp)
+        packed = slot >= 0
+        mu[packed] = self._read(self._mu_wp)[slot[packed]]
+        return mu, n, float(self._read(self._mean_wp)[0])
 
     def _copy_in(self, array: wp.array, value) -> None:
         """Copy a numpy array into a Warp array: in place through the shared view on the CPU
@@ -358,18 +374,18 @@ class CutDetector:
 
         The measure, its mean, the outliers, their cluster around the strongest one, the cut
         point and the pairs it removes are one graph launch; Python reads a few numbers, and
-        works only when a cut point is put.
+        works (on the polygons) only when a cut point is put.
 
         Args:
             current: (F, 3) features on the model ``p^t`` (m).
             target: (F, 3) their targets ``p^1`` (m).
             active: (F,) bool, features still tracked and pulling.
         """
-        n = self._measure_live(current, target, active)
+        n = self._measure_live(current, target, active, self._graph)
         if n == 0:
             self.last_mean, self.last_outliers = 0.0, 0
             return None
-        self.last_mean = float(self._read(self._sum_wp)[0]) / n
+        self.last_mean = float(self._read(self._mean_wp)[0])
         self.last_outliers = int(self._read(self._outliers_wp)[0])
         if self.last_outliers < self.params.min_outliers:
             return None
@@ -377,7 +393,8 @@ class CutDetector:
         if near < self.params.min_outliers:
             return None
         point = np.array(self._read(self._point_wp)[0], dtype=np.float64)
-        self._remove(np.flatnonzero(self._read(self._near_wp)))  # marked by the graph's last kernel
+        if not self._views:  # the graph took the pairs through the cut point out
+            self._alive[:] = self._read(self._alive_wp)
         return self._extend(point, near)
 
     def _extend(self, point: np.ndarray, outliers: int) -> CutPoint:
