@@ -177,3 +177,14 @@ def test_bad_parameters_name_the_key(key, value):
     settings[key] = value
     with pytest.raises(WcutError, match=f"detection.{key}"):
         DetectionParams(**settings)
+
+
+def test_a_cut_point_that_removes_every_pair_is_still_returned():
+    p0 = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.02, 0.0, 0.0], [0.03, 0.0, 0.0]])
+    det = CutDetector(p0, DetectionParams(radius=0.011, cut_point_radius=0.5, tau=1.0, min_outliers=1))
+    target = p0.copy()
+    target[2:, 0] += 0.01  # the middle pair opens
+    found = det.update(p0, target, np.ones(4, dtype=bool))
+    assert found is not None and found.outliers >= 1
+    np.testing.assert_allclose(found.point, [0.015, 0.0, 0.0], atol=1e-6)
+    assert det.pair_count == 0 and len(det.polygons) == 1 and det.last_outliers >= 1

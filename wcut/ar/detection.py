@@ -381,10 +381,9 @@ class CutDetector:
             target: (F, 3) their targets ``p^1`` (m).
             active: (F,) bool, features still tracked and pulling.
         """
-        n = self._measure_live(current, target, active, self._graph)
-        if n == 0:
-            self.last_mean, self.last_outliers = 0.0, 0
-            return None
+        # the count is read after the graph, whose cut point may have taken out every pair:
+        # the graph clears the mean, outliers and cluster when there is nothing to measure
+        self._measure_live(current, target, active, self._graph)
         self.last_mean = float(self._read(self._mean_wp)[0])
         self.last_outliers = int(self._read(self._outliers_wp)[0])
         if self.last_outliers < self.params.min_outliers:
