@@ -277,11 +277,11 @@ class CutDetector:
 
     def _pack_live(self, active: np.ndarray) -> None:
         """Pack the live pairs (in the graph, both features active) at the front of the
-        kernel's pair arrays. Between packings the graph's first kernel takes the pairs of
-        features that stop pulling out in place (every change of a video but the first
-        frame's), and :meth:`_remove` those through a cut point's sphere; the pairs are packed
-        again when a feature comes back or fewer than :data:`REPACK_BELOW` of the packed ones
-        are left."""
+        kernel's pair arrays. Between packings pairs leave in place: the graph takes out those
+        of features that stop pulling (every change of a video but the first frame's) and those
+        through a cut point's sphere, :meth:`remove_pairs` the ones it is given; the pairs are
+        packed again when a feature comes back or fewer than :data:`REPACK_BELOW` of the packed
+        ones are left."""
         P = len(self.pairs)
         live = np.flatnonzero(self._alive & active[self._l] & active[self._m])
         n = self._measured = self._packed = len(live)
