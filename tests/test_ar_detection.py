@@ -160,6 +160,20 @@ def test_a_point_grows_the_nearest_end_or_starts_a_new_polygon():
     assert far.polygon == 1 and far.previous is None and len(det.polygons) == 2
 
 
+def test_a_closed_end_is_not_extended_again():
+    det = CutDetector(grid_features(5), DetectionParams(radius=0.03, cut_point_radius=0.01))
+    det._extend(np.array([0.05, 0.05, 0.0]), 3)
+    det._extend(np.array([0.05, 0.065, 0.0]), 3)
+    det.close_end(0, False)  # the cut went out through the boundary past (0.05, 0.065)
+    beyond = det._extend(np.array([0.05, 0.075, 0.0]), 3)  # nearest the closed end: the open one takes it
+    assert beyond.polygon == 0 and beyond.at_start
+    det.close_end(0, True)
+    alone = det._extend(np.array([0.05, 0.085, 0.0]), 3)  # both ends closed: a polygon of its own
+    assert alone.polygon == 1 and alone.previous is None and len(det.polygons[0]) == 3
+    with pytest.raises(WcutError, match="no polygon 5"):
+        det.close_end(5, True)
+
+
 def test_lost_features_are_left_out_and_the_floor_holds_noise():
     p0 = grid_features()
     det = CutDetector(p0, DetectionParams(radius=0.012, cut_point_radius=0.008, tau=2.0, min_measure=1e-3))

@@ -173,3 +173,37 @@ def test_a_diverging_model_is_a_simulation_error(side_capture):
     tracker.state.particle_q.assign(q)
     with pytest.raises(SimulationError, match="diverged"):
         tracker._check_bounded()
+
+
+def test_a_look_ahead_near_the_boundary_carries_the_cut_through_it(side_capture):
+    from wcut.ar.pipeline import ArTracker
+
+    capture = Capture(side_capture)
+    frames = capture.frames()
+    tracker = ArTracker(capture, next(frames), cut=True)
+    rest = tracker.mesh.vertices
+    lower, upper = rest.min(axis=0), rest.max(axis=0)
+    radius = tracker.cut_point_radius
+    middle = 0.5 * (lower + upper)
+    east = np.array([1.0, 0.0, 0.0])
+    near = middle.copy()
+    near[0] = upper[0] - 0.4 * radius
+    assert tracker.boundary_reach == 0.0 and tracker._through_boundary(near, east) is None  # off by default
+    tracker.boundary_reach = radius
+    assert tracker._through_boundary(middle, east) is None  # the band is wider than two radii
+    beyond = tracker._through_boundary(near, 2.0 * east)  # the direction's length does not matter
+    step = radius / 20  # BOUNDARY_SAMPLES - 1 steps over the reach
+    assert beyond[0] == pytest.approx(upper[0] + radius, abs=1.5 * step)
+    np.testing.assert_allclose(beyond[1:], near[1:])
+
+    # A polygon whose look-ahead lands there: the cut goes through and that end is closed.
+    detector = tracker.detector
+    for x in (near[0] - 2.0 * radius, near[0] - radius):
+        tracker._cut(detector._extend(np.array([x, middle[1], middle[2]]), 3))
+    assert detector.closed_ends == {(0, False)} and tracker.cut_events == 1
+    wound = tracker.mesh.boundary().triangles
+    centres = tracker.mesh.vertices[wound].mean(axis=1)
+    opened = centres[(centres[:, 0] > lower[0] + 1e-6) & (centres[:, 0] < upper[0] - 1e-6)
+                     & (np.abs(centres[:, 1] - middle[1]) < 0.5 * radius)
+                     & (centres[:, 2] > lower[2] + 1e-6) & (centres[:, 2] < upper[2] - 1e-6)]
+    assert opened[:, 0].max() > upper[0] - 0.5 * radius  # the wound reaches the boundary

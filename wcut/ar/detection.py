@@ -13,6 +13,8 @@ boundary at both ends (the thesis extends only the newest end; its first point, 
 the outliers are, lies inside the object, and a cut starting there could not open). A cut
 point farther than ``join_radius`` from every polygon end starts a new polygon: a second
 cut elsewhere, or a stray detection, is not joined to the first by a long straight cut.
+An end whose cut went through the object's boundary is closed (:meth:`close_end`): later
+points start a new polygon rather than turn a finished cut back into the object.
 
 Positions are kept in the rest configuration: a feature's initial virtual point
 ``p_l^0`` is a material point of the model, so the cut points (barycentres of ``p^0``) and
@@ -132,6 +134,7 @@ class CutDetector:
         pairs: (P, 2) neighbour pairs (l < m), ``C_F^0``.
         alive: (P,) pairs still in the graph ``C_F^t`` (read-only: :meth:`remove_pairs` changes it).
         polygons: list of (n, 3) cut polygons (m, rest), each in order.
+        closed_ends: the polygon ends (polygon, at start) closed by :meth:`close_end`.
         last_mean: mean measure of the last update (0 before any).
         last_outliers: outlier pairs of the last update.
     """
@@ -151,6 +154,7 @@ class CutDetector:
         self._setup_kernel()
         self._pack_live(np.ones(len(p0), dtype=bool))  # setup, not the first frame's work
         self.polygons: list[np.ndarray] = []
+        self.closed_ends: set[tuple[int, bool]] = set()
         self.last_mean = 0.0
         self.last_outliers = 0
 
@@ -396,14 +400,24 @@ class CutDetector:
             self._alive[:] = self._read(self._alive_wp)
         return self._extend(point, near)
 
+    def close_end(self, polygon: int, at_start: bool) -> None:
+        """Close an end of polygon ``polygon`` (its first point's end if ``at_start``): its cut
+        went through the object's boundary, so no later cut point extends it."""
+        if not 0 <= polygon < len(self.polygons):
+            raise WcutError(f"cut detection: no polygon {polygon} (there are {len(self.polygons)})")
+        self.closed_ends.add((polygon, bool(at_start)))
+
     def _extend(self, point: np.ndarray, outliers: int) -> CutPoint:
-        """Put ``point`` at the nearest polygon end within ``join_radius`` (figure 7.7, middle)
-        with its look-ahead, or start a new polygon with it."""
+        """Put ``point`` at the nearest open polygon end within ``join_radius`` (figure 7.7,
+        middle) with its look-ahead, or start a new polygon with it."""
         join = self.params.join_radius or 3.0 * self.params.cut_point_radius
         best, index, at_start = math.inf, -1, False
         at = point.tolist()  # plain floats: a few distances, where numpy's per-call cost dominates
+        closed = self.closed_ends
         for k, polygon in enumerate(self.polygons):
             for start, end in ((False, polygon[-1]), (True, polygon[0])):
+                if (k, start) in closed:
+                    continue
                 gap = math.dist(at, end.tolist())
                 if gap < best and gap <= join and not (start and len(polygon) == 1):
                     best, index, at_start = gap, k, start

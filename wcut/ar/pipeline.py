@@ -31,6 +31,8 @@ from .lifting import intercept_update, plane_points
 
 #: samples along the extruded blade at a cut point (its ends stick out of the object)
 BLADE_SAMPLES = 9
+#: points along ``boundary_reach`` beyond a look-ahead tested for the object's boundary
+BOUNDARY_SAMPLES = 21
 
 
 @dataclass
@@ -166,6 +168,7 @@ class ArTracker:
         edge = self.mesh.mean_edge_length()
         self.cut_point_radius = d["cut_point_radius"] or edge
         self.margin = p.springs["margin"] or self.cut_point_radius
+        self.boundary_reach = d["boundary_reach"] * self.cut_point_radius
         self.extrusion = d["extrusion"] or float(np.linalg.norm(np.ptp(rest, axis=0)))
         self.detector = None
         if cut:
@@ -252,12 +255,38 @@ class ArTracker:
         current = point + s * ray
         return material_point, current, self.topology.rest_points(current)
 
+    def _through_boundary(self, look_ahead: np.ndarray, direction: np.ndarray) -> np.ndarray | None:
+        """Where a cut whose look-ahead is ``look_ahead`` (m, rest) ends instead when the
+        object's boundary lies less than ``boundary_reach`` (m) beyond it along ``direction``:
+        ``cut_point_radius`` past that boundary, so the blade leaves the object. None
+        otherwise, and always when ``boundary_reach`` is 0 (the default).
+
+        Features stop before the boundary and a cut point takes out the pairs within a radius
+        of it, so no cut point comes much closer to the boundary than a radius, and a tear that
+        ran out through it stays bridged by the last few millimetres (the look-ahead, one
+        radius, does not always reach). The thesis's earlier rule ([78, 79], 7.5.3) lengthens
+        the cut through the boundary when no features are left in front of it; this is that
+        rule with ``boundary_reach`` as "in front". It cannot tell such a tear from a cut that
+        stops just short of the boundary (a buttonhole slit 5 mm from the band's sides is cut
+        through with a reach of one 4 mm radius), so it is a per-scene setting."""
+        reach = self.boundary_reach
+        if reach <= 0.0:
+            return None
+        unit = direction / np.linalg.norm(direction)
+        s = np.linspace(0.0, reach, BOUNDARY_SAMPLES)
+        _, inside = Embedding.locate_inside(self.mesh.vertices, self.mesh.tets, look_ahead + s[:, None] * unit)
+        if inside.all():
+            return None
+        return look_ahead + (s[np.argmin(inside)] + self.cut_point_radius) * unit
+
     def _cut(self, found) -> None:
         """Cut the model along the polygon's new piece (figure 7.7) and carry everything over.
 
         The cut is the surface swept by the extruded blade from the polygon end's last tip
         through the new point to its look-ahead; the cutter cuts it progressively, so an
-        element opens once the blade has gone through it."""
+        element opens once the blade has gone through it. A look-ahead less than
+        ``boundary_reach`` from the boundary carries the cut through it
+        (:meth:`_through_boundary`) and closes that end of the polygon."""
         self.cuts_detected += 1
         x = self.state.particle_q.numpy().astype(np.float64)
         n = self.topology.vertex_count
@@ -274,7 +303,15 @@ class ArTracker:
             path.append(self._blade(found.point, x))
         if found.look_ahead is not None:
             path.append(self._blade(found.look_ahead, x))
+            beyond = self._through_boundary(found.look_ahead, found.look_ahead - found.point)
+            if beyond is not None:
+                path.append(self._blade(beyond, x))
+                self.detector.close_end(k, found.at_start)
         if found.back is not None:
+            beyond = self._through_boundary(found.back, found.back - found.previous)
+            if beyond is not None:
+                path.insert(0, self._blade(beyond, x))
+                self.detector.close_end(k, not found.at_start)
             self._tips[(k, not found.at_start)] = path[0]
         self._tips[(k, found.at_start)] = path[-1]
         rest_pieces = [s for s in (strip(a[2], b[2]) for a, b in zip(path, path[1:])) if s is not None]
