@@ -173,10 +173,7 @@ class CutDetector:
     def remove_pairs(self, pairs) -> None:
         """Take pairs (indices into :attr:`pairs`) out of the graph for good, as a cut point
         does with the pairs through its sphere."""
-        self._remove(np.unique(np.asarray(pairs, dtype=np.int64).reshape(-1)))
-
-    def _remove(self, pairs: np.ndarray) -> None:
-        """:meth:`remove_pairs` of distinct pairs."""
+        pairs = np.unique(np.asarray(pairs, dtype=np.int64).reshape(-1))
         gone = pairs[self._alive[pairs]]
         self._alive[gone] = False
         if not self._views:  # a copy: write it back
