@@ -6,14 +6,14 @@ import json
 from wcut.bench import run_benchmarks
 from wcut.cut import METHODS
 
-KEYS = {"name", "tets", "nodes", "step_ms", "reference_step_ms", "speedup_vs_reference", "rotation_ns_per_element",
+KEYS = {"name", "tets", "nodes", "step_ms", "cpu_threads", "step_ms_one_thread", "reference_step_ms", "speedup_vs_reference", "rotation_ns_per_element",
         "matvec_ns_per_element"}
 CUT_KEYS = {"name", "tets", "nodes", "cut_elements", "event_ms", "cut_ms", "rebuild_ms"}
 METHOD_KEYS = {"method", "epsilon", "cut_elements", "added_nodes_per_cut_element", "added_elements_per_cut_element",
                "components"}
 
-P2_KEYS = {"name", "tets", "nodes", "step_ms", "steps_per_second", "forces_ns_per_element", "matvec_ns_per_element",
-           "p1_same_corners_step_ms", "cg_iterations"}
+P2_KEYS = {"name", "tets", "nodes", "step_ms", "steps_per_second", "cpu_threads", "step_ms_one_thread",
+           "forces_ns_per_element", "matvec_ns_per_element", "p1_same_corners_step_ms", "cg_iterations"}
 #: Two short beams of 1 cm cells with the 4 x 5 cross-section of wcut.bench.CUT_SCENES.
 TINY_CUTS = (("tiny_cut", (6, 4, 5), (0.06, 0.04, 0.05)), ("tiny_cut2", (10, 4, 5), (0.10, 0.04, 0.05)))
 

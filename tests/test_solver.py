@@ -9,6 +9,7 @@ import wcut
 from wcut.errors import SimulationError
 from wcut.model import Model, Attachments
 from wcut.reference import ScipyCorotationalStep
+from wcut.quadratic import to_quadratic
 from wcut.solver import SolverCorotational
 
 
@@ -209,16 +210,18 @@ def test_divergence_is_reported():
         solver.check_finite()
 
 
-def test_step_allocates_nothing():
+@pytest.mark.parametrize("cpu_threads", [1, 2])
+def test_step_allocates_nothing(cpu_threads):
     import io
     import re
 
     mesh = wcut.beam(4, 2, 2, size=(0.2, 0.05, 0.05))
     model = Model(mesh, fixed=[0, 1, 2], attachments=Attachments.at_vertices([40], 10.0), rayleigh_mass=0.1)
-    solver = SolverCorotational(model, cg_iterations=10)
+    solver = SolverCorotational(model, cg_iterations=10, cpu_threads=cpu_threads)
     a, b, control = model.state(), model.state(), model.control()
     report = io.StringIO()
     with wp.ScopedMemoryTracker("step", print=False) as tracker:
+        tracker.clear()  # the totals are global: drop those of an earlier tracker in this process
         for _ in range(3):  # the first step records the conjugate-gradient launches
             solver.step(a, b, control, 0.01)
             a, b = b, a
@@ -227,6 +230,7 @@ def test_step_allocates_nothing():
     # the tracker does see allocations (the assertion above could fail)
     report = io.StringIO()
     with wp.ScopedMemoryTracker("control", print=False) as tracker:
+        tracker.clear()
         model.state()
         tracker.report(file=report)
     assert re.search(r"^\s+cpu\s+\d+ \(", report.getvalue(), re.MULTILINE)
@@ -420,3 +424,60 @@ def test_a_new_time_step_or_a_replaced_array_is_captured_again():
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
     unforced = _steps(model, SolverCorotational(model, cg_iterations=30), targets, dt)
     assert np.abs(a[-1] - unforced[-1]).max() > 1e-5  # the new force array acted
+
+
+def _p1_and_p2_beams():
+    mesh, model, params = clamped_beam(cells=(6, 2, 2))
+    quadratic = to_quadratic(mesh)
+    return [(mesh, model), (quadratic, Model(quadratic, fixed=quadratic.vertices_in_box((-1, -1, -1), (1e-9, 1, 1)),
+                                             **params))]
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_element_kernels_split_over_threads_equal_one_launch(order):
+    mesh, model = _p1_and_p2_beams()[order - 1]
+    rng = np.random.default_rng(order)
+    q, dv = mesh.vertices + 0.01 * rng.normal(size=mesh.vertices.shape), rng.normal(size=mesh.vertices.shape)
+    passes = {}
+    for threads in (1, 3):
+        solver = SolverCorotational(model, cpu_threads=threads)
+        assert solver.cpu_threads == threads
+        state, out = model.state(), model.state()
+        state.particle_q.assign(q)
+        solver.dv.assign(dv)
+        solver.launch_element_pass(state, out, 0.01)
+        solver._record_cg(0.01)
+        solver._p.assign(solver.dv)
+        solver._rz.fill_(1.0)  # not converged: the product runs
+        product = solver._q.numpy().copy()
+        solver._cg_commands[1].launch()  # q += c_A K_t p of iteration 0
+        passes[threads] = [a.numpy() for a in (solver._force, solver.particle_diagonal, out.tet_rotation,
+                                               solver.tet_rotated_gradients)] + [solver._q.numpy() - product]
+        assert not any(p.numpy().any() for p in solver._partials)
+    for one, split in zip(passes[1], passes[3]):
+        assert np.abs(one).max() > 0.0
+        np.testing.assert_allclose(split, one, rtol=0.0, atol=1e-5 * np.abs(one).max())
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_steps_split_over_threads_follow_single_thread_steps(order):
+    mesh, model = _p1_and_p2_beams()[order - 1]
+    ends = [run(model, SolverCorotational(model, cg_iterations=300, cg_tolerance=1e-6, cpu_threads=threads), 15,
+                0.01).particle_q.numpy() for threads in (1, 2)]
+    sag = np.abs(ends[0] - mesh.vertices).max()
+    assert sag > 1e-3
+    assert np.abs(ends[1] - ends[0]).max() < 1e-4 * sag
+
+
+def test_cpu_threads_default_to_one_for_small_models_and_are_checked(monkeypatch):
+    from wcut import solver as solver_module
+
+    _, model = _p1_and_p2_beams()[0]
+    assert SolverCorotational(model).cpu_threads == 1
+    assert SolverCorotational(model, cpu_threads=8).cpu_threads == 8
+    monkeypatch.setitem(solver_module.ELEMENTS_PER_THREAD, 1, 10)
+    monkeypatch.setattr(solver_module, "available_cores", lambda: 3)
+    assert SolverCorotational(model).cpu_threads == 3  # one per 10 elements, at most the cores
+    for bad in (0, 9, 2.0, True):
+        with pytest.raises(SimulationError, match="cpu_threads"):
+            SolverCorotational(model, cpu_threads=bad)

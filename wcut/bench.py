@@ -86,6 +86,35 @@ def _median_seconds(fn, repeats: int, warmup: int = 1) -> float:
     return statistics.median(samples)
 
 
+def _bent_solvers(model, control=None, thread_counts=(None, 1)):
+    """One solver per entry of ``thread_counts`` (``cpu_threads``; None: the default), each
+    with its own state stepped 10 times, so rotations are not the identity; a dict keyed by
+    the entry, of ``(solver, state, scratch)``."""
+    runs = {}
+    for threads in dict.fromkeys(thread_counts):
+        solver = SolverCorotational(model, cg_iterations=CG_ITERATIONS, cg_tolerance=0.0, cpu_threads=threads)
+        state, scratch = model.state(), model.state()
+        for _ in range(10):
+            solver.step(state, scratch, control, DT)
+            state, scratch = scratch, state
+        runs[threads] = (solver, state, scratch)
+    return runs
+
+
+def _alternating_step_seconds(runs, control, repeats: int) -> dict:
+    """Median step time of each run of :func:`_bent_solvers`, timed in turn, step after step,
+    so that a shared machine's load changes touch them alike."""
+    samples = {key: [] for key in runs}
+    for k in range(repeats + 1):  # the first round warms up
+        for key, (solver, state, scratch) in runs.items():
+            start = time.perf_counter()
+            solver.step(state, scratch, control, DT)
+            wp.synchronize_device(solver.model.device)
+            if k:
+                samples[key].append(time.perf_counter() - start)
+    return {key: statistics.median(values) for key, values in samples.items()}
+
+
 def _scene_model(cells, size, device=None):
     mesh = beam(*cells, size=size)
     fixed = mesh.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9))
@@ -134,14 +163,11 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
     from .reference import ScipyCorotationalStep
 
     mesh, model, fixed = _scene_model(cells, size, device)
-    solver = SolverCorotational(model, cg_iterations=CG_ITERATIONS, cg_tolerance=0.0)
-    state, scratch, control = model.state(), model.state(), model.control()
-    for _ in range(10):  # bend it a little so rotations are not the identity
-        solver.step(state, scratch, control, DT)
-        state, scratch = scratch, state
-
-    step_s = _median_seconds(lambda: (solver.step(state, scratch, control, DT), wp.synchronize_device(model.device)),
-                             repeats)
+    control = model.control()
+    runs = _bent_solvers(model, control)
+    steps_s = _alternating_step_seconds(runs, control, repeats)
+    step_s = steps_s[None]
+    solver, state, scratch = runs[1]  # the kernels' costs below are per element on one thread
     cg_fused_s = _median_seconds(lambda: ([c.launch() for c in solver._cg_commands],
                                           wp.synchronize_device(model.device)), repeats)
     forces_s = _median_seconds(solver.launch_element_pass(state, scratch, DT, record=True).launch, repeats)
@@ -175,6 +201,8 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
         "tets": model.tet_count,
         "nodes": model.particle_count,
         "step_ms": round(step_s * 1e3, 3),
+        "cpu_threads": runs[None][0].cpu_threads,
+        "step_ms_one_thread": round(steps_s[1] * 1e3, 3),
         "reference_step_ms": round(reference_s * 1e3, 3),
         "speedup_vs_reference": round(reference_s / step_s, 2),
         "rotation_ns_per_element": round(rotation_s * per_element, 2),
@@ -200,13 +228,11 @@ def bench_quadratic(name: str, cells, size, *, repeats: int = 20, device=None) -
         model = Model(each, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3, rayleigh_mass=0.1,
                       rayleigh_stiffness=0.01, gravity=(9.81, 0.0, 0.0),
                       fixed=each.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9)), device=device)
-        solver = SolverCorotational(model, cg_iterations=CG_ITERATIONS, cg_tolerance=0.0)
-        state, scratch = model.state(), model.state()
-        for _ in range(10):  # bend it a little so rotations are not the identity
-            solver.step(state, scratch, None, DT)
-            state, scratch = scratch, state
-        times[label] = _median_seconds(lambda: (solver.step(state, scratch, None, DT),
-                                                wp.synchronize_device(model.device)), repeats)
+        runs = _bent_solvers(model, thread_counts=(None, 1) if label == "p2" else (None,))
+        for threads, seconds in _alternating_step_seconds(runs, None, repeats).items():
+            times[label, threads] = seconds
+        solver, state, scratch = runs[1 if label == "p2" else None]
+        threads = runs[None][0].cpu_threads
         if label == "p2":
             forces_s = _median_seconds(solver.launch_element_pass(state, scratch, DT, record=True).launch, repeats)
             y = wp.zeros(model.particle_count, dtype=wp.vec3, device=model.device)
@@ -217,17 +243,19 @@ def bench_quadratic(name: str, cells, size, *, repeats: int = 20, device=None) -
                                        solver.tet_rotation_stiffness, model.tet_stiffness, state.particle_qd, 1.0, 0,
                                        one, zero], outputs=[y])
             matvec_s = _median_seconds(matvec.launch, repeats * 5)
-            p2_nodes, p2_tets = model.particle_count, model.tet_count
+            p2_nodes, p2_tets, p2_threads = model.particle_count, model.tet_count, threads
     per_element = 1e9 / p2_tets
     return {
         "name": name,
         "tets": p2_tets,
         "nodes": p2_nodes,
-        "step_ms": round(times["p2"] * 1e3, 3),
-        "steps_per_second": round(1.0 / times["p2"], 1),
+        "step_ms": round(times["p2", None] * 1e3, 3),
+        "steps_per_second": round(1.0 / times["p2", None], 1),
+        "cpu_threads": p2_threads,
+        "step_ms_one_thread": round(times["p2", 1] * 1e3, 3),
         "forces_ns_per_element": round(forces_s * per_element, 2),
         "matvec_ns_per_element": round(matvec_s * per_element, 2),
-        "p1_same_corners_step_ms": round(times["p1"] * 1e3, 3),
+        "p1_same_corners_step_ms": round(times["p1", None] * 1e3, 3),
         "cg_iterations": CG_ITERATIONS,
     }
 
@@ -349,7 +377,8 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
                                             ("components", "pieces")])
     if quadratic:
         _print_rows(quadratic, [("name", "quadratic"), ("tets", "tets"), ("nodes", "nodes"), ("step_ms", "step ms"),
-                                ("steps_per_second", "steps/s"), ("forces_ns_per_element", "forces ns/el"),
+                                ("steps_per_second", "steps/s"), ("cpu_threads", "threads"),
+                                ("step_ms_one_thread", "1 thread ms"), ("forces_ns_per_element", "forces ns/el"),
                                 ("matvec_ns_per_element", "matvec ns/el"),
                                 ("p1_same_corners_step_ms", "P1 same corners ms")])
     if "ar_loop" in result:
@@ -367,6 +396,7 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
 
 def _print_table(records) -> None:
     columns = [("name", "scene"), ("tets", "tets"), ("nodes", "nodes"), ("step_ms", "step ms"),
+               ("cpu_threads", "threads"), ("step_ms_one_thread", "1 thread ms"),
                ("reference_step_ms", "scipy ms"), ("speedup_vs_reference", "speedup"),
                ("rotation_ns_per_element", "rot ns/el"), ("rotation_svd_ns_per_element", "svd ns/el"),
                ("matvec_ns_per_element", "matvec ns/el"), ("forces_ns_per_element", "forces ns/el"),

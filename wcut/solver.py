@@ -29,9 +29,28 @@ import warp as wp
 from .errors import SimulationError
 from .kernels import attachments, bending, cg, implicit_euler, tet_p1, tet_p2, tri_p2
 from .model import Control, Model, State
+from .split_launch import MAX_THREADS, SplitLaunch, ThreadTeam, available_cores
 
 #: captured steps kept per solver (two for the usual ping-pong of states)
 GRAPH_CACHE_SIZE = 4
+
+#: elements per CPU thread (by element order) below which another thread costs more than it
+#: saves: a thread's hand-over costs some 30-60 us per launch, and the element product costs
+#: about 25 ns (P1) or 200 ns (P2) per element here
+ELEMENTS_PER_THREAD = {1: 20000, 2: 2000}
+
+
+def _thread_count(cpu_threads, model: Model) -> int:
+    """The validated ``cpu_threads`` of :class:`SolverCorotational` (1 on CUDA)."""
+    if cpu_threads is not None and (isinstance(cpu_threads, bool) or not isinstance(cpu_threads, (int, np.integer))
+                                    or not 1 <= cpu_threads <= MAX_THREADS):
+        raise SimulationError(f"cpu_threads must be None or an integer in 1..{MAX_THREADS}, got {cpu_threads!r}")
+    if not model.device.is_cpu or model.tet_count == 0:
+        return 1
+    if cpu_threads is None:
+        wanted = model.tet_count // ELEMENTS_PER_THREAD[model.tet_order]
+        return max(1, min(wanted, available_cores(), MAX_THREADS))
+    return min(int(cpu_threads), model.tet_count)
 
 
 class SolverCorotational:
@@ -59,6 +78,12 @@ class SolverCorotational:
             either way; False gives the thesis's (and SOFA's) ``R K R^T`` system.
         graph_capture: replay repeated steps from a captured graph (see :meth:`step`); the
             results are the same bit for bit. False launches every kernel from Python.
+        cpu_threads: threads that share the element kernels (forces and the product of every
+            CG iteration) on a CPU device, each over its own range of elements
+            (:mod:`wcut.split_launch`); None picks one per :data:`ELEMENTS_PER_THREAD` elements,
+            at most the cores this process may use and :data:`wcut.split_launch.MAX_THREADS`.
+            A split step is not graph-captured (a graph replays its launches one after
+            another). Ignored on CUDA.
 
     ``step`` allocates nothing: every array it touches is created here. The conjugate-gradient
     launches are recorded for the current ``dt``, ``model.rayleigh_stiffness`` and
@@ -67,7 +92,7 @@ class SolverCorotational:
 
     def __init__(self, model: Model, *, cg_iterations: int = 20, cg_tolerance: float = 1.0e-6,
                  rotation_iterations: int = 8, rotation_tolerance: float = 1.0e-6, rotation_stiffness: bool = True,
-                 graph_capture: bool = True):
+                 graph_capture: bool = True, cpu_threads: int | None = None):
         for name, value in (("cg_iterations", cg_iterations), ("rotation_iterations", rotation_iterations)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= 100000:
                 raise SimulationError(f"{name} must be an integer in 1..100000, got {value!r}")
@@ -91,6 +116,11 @@ class SolverCorotational:
         self.dv = vec()
         self._r, self._z, self._p, self._q = vec(), vec(), vec(), vec()
         self._elements = tet_p2 if model.tet_order == 2 else tet_p1  # the kernels of the element family
+        self.cpu_threads = _thread_count(cpu_threads, model)
+        self._team = ThreadTeam(self.cpu_threads)
+        # scratch of the split element kernels' scatters into _force, particle_diagonal and _q
+        self._partials = [wp.zeros((self.cpu_threads - 1, n), dtype=wp.vec3, device=d)
+                          for _ in range(3 if self.cpu_threads > 1 else 0)]
         self.tet_rotated_gradients = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33, device=d)
         self.tet_rotation_stiffness = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33, device=d)  # V mu units
         self.tri_rotation = wp.zeros((model.tri_count, 3), dtype=tri_p2.mat32, device=d)
@@ -100,7 +130,7 @@ class SolverCorotational:
         self._norms = wp.zeros(2, dtype=float, device=d)  # tol^2 b.D^-1 b (the threshold), b.D^-1 b
         self._nonfinite = wp.zeros(1, dtype=wp.int32, device=d)
         self._recorded_for: tuple | None = None
-        self._cg_commands: list = []
+        self._cg_commands: list = []  # recorded launches, or SplitLaunch objects: anything with launch()
         self.graph_capture = bool(graph_capture)
         self._graphs: dict = {}  # capture key -> (graph, the objects whose ids the key holds)
         self._seen: deque = deque(maxlen=2 * GRAPH_CACHE_SIZE)  # keys stepped lately: their next step captures
@@ -118,17 +148,27 @@ class SolverCorotational:
 
     def launch_element_pass(self, state_in: State, state_out: State, dt: float, record: bool = False):
         """The once-per-step element kernel (rotations, forces, right-hand side terms,
-        preconditioner diagonal, warm-start product) of the tetrahedra; returns the recorded
-        launch if ``record``. Shell triangles and hinges get theirs in :meth:`launch_shell_pass`."""
+        preconditioner diagonal, warm-start product) of the tetrahedra, split over
+        ``cpu_threads``; with ``record`` it only records it and returns an object whose
+        ``launch()`` runs it. Shell triangles and hinges get theirs in :meth:`launch_shell_pass`."""
         m = self.model
-        return wp.launch(self._elements.tet_forces, m.tet_count, device=m.device, record_cmd=record,
-                         inputs=[m.tet_indices, m.tet_poses, m.tet_stiffness, state_in.particle_q,
-                                 state_in.particle_qd, self.dv, state_in.tet_rotation, dt + m.rayleigh_stiffness,
-                                 self.stiffness_scale(dt), self.rotation_iterations, self.rotation_tolerance,
-                                 int(self.rotation_stiffness)],
-                         outputs=[state_out.tet_rotation, self.tet_rotated_gradients, self.tet_rotation_stiffness,
-                                  self._force,
-                                  self.particle_diagonal, self._q])
+
+        def launch(lo: int, hi: int, targets: list, record_cmd: bool = True):
+            return wp.launch(self._elements.tet_forces, hi - lo, device=m.device, record_cmd=record_cmd,
+                             inputs=[m.tet_indices[lo:hi], m.tet_poses[lo:hi], m.tet_stiffness[lo:hi],
+                                     state_in.particle_q, state_in.particle_qd, self.dv, state_in.tet_rotation[lo:hi],
+                                     dt + m.rayleigh_stiffness, self.stiffness_scale(dt), self.rotation_iterations,
+                                     self.rotation_tolerance, int(self.rotation_stiffness)],
+                             outputs=[state_out.tet_rotation[lo:hi], self.tet_rotated_gradients[lo:hi],
+                                      self.tet_rotation_stiffness[lo:hi], *targets])
+
+        targets = [self._force, self.particle_diagonal, self._q]
+        if self.cpu_threads == 1:
+            return launch(0, m.tet_count, targets, record)
+        split = SplitLaunch(self._team, m.tet_count, launch, targets, self._partials)
+        if not record:
+            split.launch()
+        return split
 
     def launch_shell_pass(self, state_in: State, dt: float) -> None:
         """The once-per-step kernels of the shell triangles and bending hinges (the terms of
@@ -156,11 +196,7 @@ class SolverCorotational:
                           outputs=[q, r, z, p, rz, norms])]
         for k in range(self._cg_iterations):
             if m.tet_count:
-                cmds.append(wp.launch(self._elements.tet_matvec, m.tet_count, device=d, record_cmd=True,
-                                      inputs=[m.tet_indices, self.tet_rotated_gradients,
-                                              self.tet_rotation_stiffness, m.tet_stiffness, p,
-                                              stiffness_scale, k, rz, norms],
-                                      outputs=[q]))
+                cmds.append(self._record_tet_matvec(stiffness_scale, k))
             if m.tri_count:
                 cmds.append(wp.launch(tri_p2.tri_matvec, m.tri_count, device=d, record_cmd=True,
                                       inputs=[m.tri_indices, m.tri_poses, m.tri_stiffness, self.tri_rotation,
@@ -188,6 +224,22 @@ class SolverCorotational:
                                       inputs=[k, z, rz, norms], outputs=[p]))
         self._cg_commands = cmds
         self._recorded_for = (dt, m.rayleigh_stiffness, self.cg_tolerance)
+
+    def _record_tet_matvec(self, stiffness_scale: float, k: int):
+        """The recorded element product ``q += c_A K_t p`` of CG iteration ``k``, split over
+        ``cpu_threads``."""
+        m = self.model
+
+        def record(lo: int, hi: int, targets: list):
+            return wp.launch(self._elements.tet_matvec, hi - lo, device=m.device, record_cmd=True,
+                             inputs=[m.tet_indices[lo:hi], self.tet_rotated_gradients[lo:hi],
+                                     self.tet_rotation_stiffness[lo:hi], m.tet_stiffness[lo:hi], self._p,
+                                     stiffness_scale, k, self._rz, self._norms],
+                             outputs=targets)
+
+        if self.cpu_threads == 1:
+            return record(0, m.tet_count, [self._q])
+        return SplitLaunch(self._team, m.tet_count, record, [self._q], self._partials[2:])
 
     def _check(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Cheap checks that keep a wrong argument from reading out of bounds (no allocation)."""
@@ -224,7 +276,7 @@ class SolverCorotational:
         m = self.model
         if self._recorded_for != (dt, m.rayleigh_stiffness, self.cg_tolerance):
             self._record_cg(dt)
-        if not self.graph_capture:
+        if not self.graph_capture or self.cpu_threads > 1:
             self._launch_step(state_in, state_out, control, dt)
             return
         key, held = self._capture_key(state_in, state_out, control, dt)
