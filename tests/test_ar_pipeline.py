@@ -173,6 +173,14 @@ def test_a_diverging_model_is_a_simulation_error(side_capture):
     tracker.state.particle_q.assign(q)
     with pytest.raises(SimulationError, match="diverged"):
         tracker._check_bounded()
+    rest = tracker.mesh.vertices
+    for scale, diverged in ((2.5, False), (15.0, True)):  # the model blown up 2.5 or 15 times about its centre
+        tracker.state.particle_q.assign(tracker._rest_centre + scale * (rest - tracker._rest_centre))
+        if diverged:
+            with pytest.raises(SimulationError, match="diverged"):
+                tracker._check_bounded()
+        else:
+            tracker._check_bounded()
 
 
 def test_a_look_ahead_near_the_boundary_carries_the_cut_through_it(side_capture):
