@@ -66,6 +66,15 @@ def test_defaults_and_name_from_file(tmp_path, write_scene):
     assert scene.frame_count == 60  # 2 s at 30 fps
 
 
+def test_solver_cpu_threads_reach_the_solver(tmp_path, write_scene):
+    from wcut.scene import Simulation
+
+    default = Simulation(load_scene(write_scene(tmp_path, MINIMAL)))
+    assert default.solver.cpu_threads == 1  # a small model stays on one thread
+    pinned = Simulation(load_scene(write_scene(tmp_path, MINIMAL + "[solver]\ncpu_threads = 2\n", "two.toml")))
+    assert pinned.solver.cpu_threads == 2
+
+
 @pytest.mark.parametrize(
     "duration, fps, frames",
     [(1.0, 24, 24), (0.1, 30, 3), (0.001, 30, 1), (0.5, 25.5, 13)],
@@ -94,6 +103,8 @@ def test_integers_are_accepted_as_numbers(tmp_path, write_scene):
         ("[material]\ndensity = nan\n", "material.density", "finite"),
         ("[solver]\ncg_iterations = true\n", "solver.cg_iterations", "expected an integer"),
         ("[solver]\ncg_iterations = 5.0\n", "solver.cg_iterations", "expected an integer"),
+        ("[solver]\ncpu_threads = 0\n", "solver.cpu_threads", "1 to 8 threads"),
+        ("[solver]\ncpu_threads = 2.0\n", "solver.cpu_threads", "expected an integer"),
         ("[loads]\ngravity = [0.0, -9.81]\n", "loads.gravity", "three numbers"),
         ('[loads]\ngravity = [0.0, "down", 0.0]\n', "loads.gravity[1]", "expected a number"),
         ("[output]\nstress_colors = 1\n", "output.stress_colors", "true or false"),

@@ -40,7 +40,8 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
                     between, held after the last)
     [solver]        dt (s), cg_iterations (<= 10000), cg_tolerance, rotation_iterations,
                     rotation_stiffness (bool, default true: the tangent's rotation term in the
-                    system matrix, see wcut.solver; false: the thesis's R K R^T)
+                    system matrix, see wcut.solver; false: the thesis's R K R^T), cpu_threads
+                    (1..8: threads of the element kernels on the CPU; default: by model size)
     [simulation]    duration (s), fps (frames per second written)
     [output]        path, stress_colors (bool), stress_max (Pa: top of the colour scale; default:
                     the largest von Mises stress of the run), up_axis ("Z" or "Y"),
@@ -88,6 +89,14 @@ def _number(value, key):
 def _integer(value, key):
     if isinstance(value, bool) or not isinstance(value, int):
         raise SceneError(f"{key}: expected an integer, got {value!r}")
+    return value
+
+
+def _thread_count(value, key):
+    from .split_launch import MAX_THREADS
+
+    if not 1 <= _integer(value, key) <= MAX_THREADS:
+        raise SceneError(f"{key}: expected 1 to {MAX_THREADS} threads, got {value!r}")
     return value
 
 
@@ -145,7 +154,8 @@ _SCHEMA = {
     "constraints": {"fixed_indices": (_list_of(_integer), []), "fixed_boxes": (_list_of(_box), [])},
     "loads": {"gravity": (_vec3, [0.0, 0.0, -9.81]), "force": (None, [])},
     "solver": {"dt": (_number, 0.01), "cg_iterations": (_integer, 50), "cg_tolerance": (_number, 1.0e-5),
-               "rotation_iterations": (_integer, 8), "rotation_stiffness": (_boolean, True)},
+               "rotation_iterations": (_integer, 8), "rotation_stiffness": (_boolean, True),
+               "cpu_threads": (_thread_count, None)},
     "simulation": {"duration": (_number, 2.0), "fps": (_number, 30.0)},
     "output": {"path": (_string, None), "stress_colors": (_boolean, True), "stress_max": (_number, None),
                "up_axis": (_string, "Z"), "subdivision": (_integer, 2)},
@@ -631,7 +641,7 @@ class Simulation:
         s = self._settings
         return SolverCorotational(self.model, cg_iterations=s["cg_iterations"], cg_tolerance=s["cg_tolerance"],
                                   rotation_iterations=s["rotation_iterations"],
-                                  rotation_stiffness=s["rotation_stiffness"])
+                                  rotation_stiffness=s["rotation_stiffness"], cpu_threads=s["cpu_threads"])
 
     def rebuild(self, mesh, change) -> None:
         """Carry the model, state and control over ``change`` (which led to ``mesh``)."""
