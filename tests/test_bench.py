@@ -25,6 +25,7 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
                             ar_frames=6)
     written = json.loads(path.read_text())
     assert written == json.loads(json.dumps(result))
+    assert written["cores"] >= 1
     (record,) = written["scenes"]
     assert KEYS <= set(record)
     assert record["tets"] == 5 * 2 * 2 * 4 and record["nodes"] == 3 * 3 * 5

@@ -22,6 +22,7 @@ from .io import atomic_path, check_writable
 from .mesh import beam, edge_matrices
 from .model import Model
 from .solver import SolverCorotational
+from .split_launch import available_cores
 
 #: name, hexahedra along x, y, z, and beam size (m): SOFA's TetrahedronFEMForceField beams
 SCENES = (("beam_10x10x40", (10, 10, 40), (0.1, 0.1, 0.4)), ("beam_16x16x76", (16, 16, 76), (0.16, 0.16, 0.76)))
@@ -354,8 +355,8 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
         if progress and sys.stderr.isatty():
             print(f"[{i + 1}/{len(p2_scenes)}] quadratic {name} ...", file=sys.stderr)
         quadratic.append(bench_quadratic(name, cells, size, repeats=5 if quick else 20))
-    result = {"device": str(wp.get_device()), "warp": wp.config.version, "scenes": records, "cut_events": cut_events,
-              "quadratic": quadratic}
+    result = {"device": str(wp.get_device()), "warp": wp.config.version, "cores": available_cores(), "scenes": records,
+              "cut_events": cut_events, "quadratic": quadratic}
     ar_frames = (20 if quick else 90) if ar_frames is None else ar_frames
     if ar_frames and AR_SCENE.exists():
         if progress and sys.stderr.isatty():
