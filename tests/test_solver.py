@@ -446,13 +446,14 @@ def test_element_kernels_split_over_threads_equal_one_launch(order):
         state.particle_q.assign(q)
         solver.dv.assign(dv)
         solver.launch_element_pass(state, out, 0.01)
+        start = solver._q.numpy().copy()  # the element pass's product with the warm start
         solver._record_cg(0.01)
         solver._p.assign(solver.dv)
         solver._rz.fill_(1.0)  # not converged: the product runs
-        product = solver._q.numpy().copy()
         solver._cg_commands[1].launch()  # q += c_A K_t p of iteration 0
         passes[threads] = [a.numpy() for a in (solver._force, solver.particle_diagonal, out.tet_rotation,
-                                               solver.tet_rotated_gradients)] + [solver._q.numpy() - product]
+                                               solver.tet_rotated_gradients, solver.tet_rotation_stiffness)]
+        passes[threads] += [start, solver._q.numpy() - start]
         assert not any(p.numpy().any() for p in solver._partials)
     for one, split in zip(passes[1], passes[3]):
         assert np.abs(one).max() > 0.0
@@ -481,3 +482,37 @@ def test_cpu_threads_default_to_one_for_small_models_and_are_checked(monkeypatch
     for bad in (0, 9, 2.0, True):
         with pytest.raises(SimulationError, match="cpu_threads"):
             SolverCorotational(model, cpu_threads=bad)
+    monkeypatch.setattr(wp.config, "mode", "debug")  # Warp's debug kernels share a pointer between threads
+    assert SolverCorotational(model, cpu_threads=4).cpu_threads == 1
+
+
+def test_a_split_step_inside_a_users_capture_replays_every_range():
+    """Warp records launches per thread: inside a capture the ranges run on the capturing
+    thread, so that the graph holds them all."""
+    mesh, model = _p1_and_p2_beams()[0]
+    ends = []
+    for threads in (1, 2):
+        solver = SolverCorotational(model, cg_iterations=40, cg_tolerance=0.0, cpu_threads=threads,
+                                    graph_capture=False)
+        a, b = model.state(), model.state()
+        solver.step(a, b, None, 0.01)  # records the CG launches
+        with wp.ScopedCapture(device=model.device) as capture:
+            solver.step(b, a, None, 0.01)
+            solver.step(a, b, None, 0.01)
+        for _ in range(5):
+            wp.capture_launch(capture.graph)
+        ends.append(b.particle_q.numpy())
+        assert not any(p.numpy().any() for p in solver._partials)
+    sag = np.abs(ends[0] - mesh.vertices).max()
+    assert sag > 1e-4
+    assert np.abs(ends[1] - ends[0]).max() < 1e-5 * sag
+
+
+def test_a_step_after_an_interrupted_split_launch_starts_from_clean_scratch():
+    mesh, model = _p1_and_p2_beams()[1]
+    clean = SolverCorotational(model, cpu_threads=2)
+    dirty = SolverCorotational(model, cpu_threads=2)
+    for partial in dirty._partials:  # what an interrupted launch may leave
+        partial.fill_(wp.vec3(1.0, 2.0, 3.0))
+    assert np.array_equal(run(model, dirty, 3, 0.01).particle_q.numpy(),
+                          run(model, clean, 3, 0.01).particle_q.numpy())

@@ -1,6 +1,7 @@
 """Element kernels split over CPU threads (wcut/split_launch.py, kernels/partial_sums.py)."""
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -59,6 +60,22 @@ def test_a_team_re_raises_an_error_of_a_worker_after_all_parts_end():
     assert sorted(done) == [0, 1, 2]
 
 
+def test_when_the_callers_part_fails_the_team_still_waits_for_the_workers():
+    team = ThreadTeam(2)
+    done = []
+
+    def fail():
+        raise ValueError("part 0 failed")
+
+    def slow():
+        time.sleep(0.05)
+        done.append(1)
+
+    with pytest.raises(ValueError, match="part 0 failed"):
+        team.run([fail, slow])
+    assert done == [1]  # the worker had ended before the error came back
+
+
 @pytest.mark.parametrize("threads", [1, 2, 3])
 def test_a_split_scatter_equals_one_launch_and_leaves_its_scratch_zero(threads):
     rng = np.random.default_rng(threads)
@@ -89,3 +106,21 @@ def test_a_split_launch_refuses_scratch_of_the_wrong_shape():
         SplitLaunch(ThreadTeam(3), 20, lambda lo, hi, t: None, [y], [wp.zeros((1, 10), dtype=wp.vec3)])
     with pytest.raises(ValueError, match="targets"):
         SplitLaunch(ThreadTeam(3), 20, lambda lo, hi, t: None, [y], [])
+
+
+def test_a_split_launch_does_nothing_while_told_to_skip():
+    pairs = wp.array(np.array([[0, 1], [1, 2], [2, 3]], dtype=np.int32), dtype=wp.vec2i)
+    weights = wp.array(np.ones(3, dtype=np.float32), dtype=float)
+    y, partials = wp.zeros(4, dtype=wp.vec3), wp.zeros((1, 4), dtype=wp.vec3)
+    skip = [True]
+
+    def record(lo, hi, targets):
+        return wp.launch(scatter_pairs, hi - lo, inputs=[pairs[lo:hi], weights[lo:hi]], outputs=targets,
+                         record_cmd=True)
+
+    split = SplitLaunch(ThreadTeam(2), 3, record, [y], [partials], skip=lambda: skip[0])
+    split.launch()
+    assert not y.numpy().any()
+    skip[0] = False
+    split.launch()
+    assert y.numpy().any()

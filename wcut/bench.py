@@ -93,6 +93,10 @@ def _bent_solvers(model, control=None, thread_counts=(None, 1)):
     the entry, of ``(solver, state, scratch)``."""
     runs = {}
     for threads in dict.fromkeys(thread_counts):
+        same = [run for run in runs.values() if run[0].cpu_threads == threads]
+        if same:  # the default came to this count: one solver serves both
+            runs[threads] = same[0]
+            continue
         solver = SolverCorotational(model, cg_iterations=CG_ITERATIONS, cg_tolerance=0.0, cpu_threads=threads)
         state, scratch = model.state(), model.state()
         for _ in range(10):
@@ -105,15 +109,16 @@ def _bent_solvers(model, control=None, thread_counts=(None, 1)):
 def _alternating_step_seconds(runs, control, repeats: int) -> dict:
     """Median step time of each run of :func:`_bent_solvers`, timed in turn, step after step,
     so that a shared machine's load changes touch them alike."""
-    samples = {key: [] for key in runs}
+    distinct = {id(run): run for run in runs.values()}
+    samples = {key: [] for key in distinct}
     for k in range(repeats + 1):  # the first round warms up
-        for key, (solver, state, scratch) in runs.items():
+        for key, (solver, state, scratch) in distinct.items():
             start = time.perf_counter()
             solver.step(state, scratch, control, DT)
             wp.synchronize_device(solver.model.device)
             if k:
                 samples[key].append(time.perf_counter() - start)
-    return {key: statistics.median(values) for key, values in samples.items()}
+    return {key: statistics.median(samples[id(run)]) for key, run in runs.items()}
 
 
 def _scene_model(cells, size, device=None):

@@ -35,8 +35,8 @@ from .split_launch import MAX_THREADS, SplitLaunch, ThreadTeam, available_cores
 GRAPH_CACHE_SIZE = 4
 
 #: elements per CPU thread (by element order) below which another thread costs more than it
-#: saves: a thread's hand-over costs some 30-60 us per launch, and the element product costs
-#: about 25 ns (P1) or 200 ns (P2) per element here
+#: saves: on the 2-core development machine, handing a launch to a thread and hearing back
+#: costs about 0.1 ms, and the element product 20-40 ns (P1) or 130-290 ns (P2) per element
 ELEMENTS_PER_THREAD = {1: 20000, 2: 2000}
 
 
@@ -45,8 +45,8 @@ def _thread_count(cpu_threads, model: Model) -> int:
     if cpu_threads is not None and (isinstance(cpu_threads, bool) or not isinstance(cpu_threads, (int, np.integer))
                                     or not 1 <= cpu_threads <= MAX_THREADS):
         raise SimulationError(f"cpu_threads must be None or an integer in 1..{MAX_THREADS}, got {cpu_threads!r}")
-    if not model.device.is_cpu or model.tet_count == 0:
-        return 1
+    if not model.device.is_cpu or model.tet_count == 0 or wp.config.mode == "debug":
+        return 1  # (debug mode: see wcut.split_launch)
     if cpu_threads is None:
         wanted = model.tet_count // ELEMENTS_PER_THREAD[model.tet_order]
         return max(1, min(wanted, available_cores(), MAX_THREADS))
@@ -82,8 +82,9 @@ class SolverCorotational:
             CG iteration) on a CPU device, each over its own range of elements
             (:mod:`wcut.split_launch`); None picks one per :data:`ELEMENTS_PER_THREAD` elements,
             at most the cores this process may use and :data:`wcut.split_launch.MAX_THREADS`.
-            A split step is not graph-captured (a graph replays its launches one after
-            another). Ignored on CUDA.
+            A split step is not graph-captured: a graph replays its launches one after
+            another (inside a capture of the user's, the ranges are recorded one after
+            another and the results stay right). Ignored on CUDA and in Warp's debug mode.
 
     ``step`` allocates nothing: every array it touches is created here. The conjugate-gradient
     launches are recorded for the current ``dt``, ``model.rayleigh_stiffness`` and
@@ -239,7 +240,9 @@ class SolverCorotational:
 
         if self.cpu_threads == 1:
             return record(0, m.tet_count, [self._q])
-        return SplitLaunch(self._team, m.tet_count, record, [self._q], self._partials[2:])
+        rz, threshold = self._rz.numpy(), self._norms.numpy()  # views: on the CPU they are host memory
+        return SplitLaunch(self._team, m.tet_count, record, [self._q], self._partials[2:],
+                           skip=lambda: rz[k] <= threshold[0])  # converged: the kernel's own test
 
     def _check(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Cheap checks that keep a wrong argument from reading out of bounds (no allocation)."""
@@ -314,6 +317,8 @@ class SolverCorotational:
         self._rz.zero_()
         self._pq.zero_()
         self._norms.zero_()
+        for partial in self._partials:  # zero unless a split launch was interrupted
+            partial.zero_()
         if m.tet_count:
             self.launch_element_pass(state_in, state_out, dt)
         if m.tri_count:
