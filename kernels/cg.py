@@ -67,17 +67,26 @@ def cg_apply_mass(
     p: wp.array(dtype=wp.vec3),
     rz: wp.array(dtype=float),
     threshold: wp.array(dtype=float),
+    partials: wp.array2d(dtype=wp.vec3),
     q: wp.array(dtype=wp.vec3),
     pq: wp.array(dtype=float),
 ):
-    """q = A p (adding the mass term to the stiffness part already in q); pq[k] = p.q."""
+    """q = A p (adding the mass term and the rows of ``partials`` to the stiffness part
+    already in q, and clearing those rows); pq[k] = p.q.
+
+    ``partials`` holds the scatters of an element product split over CPU threads
+    (``wcut.split_launch``); it has no rows otherwise."""
     if rz[k] <= threshold[0]:
         return
     i = wp.tid()
+    qi = q[i]
+    for c in range(partials.shape[0]):
+        qi = qi + partials[c, i]
+        partials[c, i] = wp.vec3(0.0)
     if inv_diagonal[i][0] == 0.0:
         q[i] = wp.vec3(0.0)
         return
-    qi = q[i] + mass_scale[i] * p[i]
+    qi = qi + mass_scale[i] * p[i]
     q[i] = qi
     wp.atomic_add(pq, k, wp.dot(p[i], qi))
 

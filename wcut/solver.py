@@ -120,8 +120,8 @@ class SolverCorotational:
         self.cpu_threads = _thread_count(cpu_threads, model)
         self._team = ThreadTeam(self.cpu_threads)
         # scratch of the split element kernels' scatters into _force, particle_diagonal and _q
-        self._partials = [wp.zeros((self.cpu_threads - 1, n), dtype=wp.vec3, device=d)
-                          for _ in range(3 if self.cpu_threads > 1 else 0)]
+        # (no rows on one thread: cg_apply_mass reads the last one either way)
+        self._partials = [wp.zeros((self.cpu_threads - 1, n), dtype=wp.vec3, device=d) for _ in range(3)]
         self.tet_rotated_gradients = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33, device=d)
         self.tet_rotation_stiffness = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33, device=d)  # V mu units
         self.tri_rotation = wp.zeros((model.tri_count, 3), dtype=tri_p2.mat32, device=d)
@@ -216,7 +216,7 @@ class SolverCorotational:
                                       outputs=[q]))
             cmds.append(wp.launch(cg.cg_apply_mass, n, device=d, record_cmd=True,
                                   inputs=[k, self.inv_diagonal, self.mass_scale, p, rz, norms],
-                                  outputs=[q, pq]))
+                                  outputs=[self._partials[2], q, pq]))
             cmds.append(wp.launch(cg.cg_update, n, device=d, record_cmd=True,
                                   inputs=[k, self.inv_diagonal, p, pq, norms],
                                   outputs=[self.dv, r, z, q, rz]))
@@ -242,7 +242,8 @@ class SolverCorotational:
             return record(0, m.tet_count, [self._q])
         rz, threshold = self._rz.numpy(), self._norms.numpy()  # views: on the CPU they are host memory
         return SplitLaunch(self._team, m.tet_count, record, [self._q], self._partials[2:],
-                           skip=lambda: rz[k] <= threshold[0])  # converged: the kernel's own test
+                           skip=lambda: rz[k] <= threshold[0],  # converged: the kernel's own test
+                           add_partials=False)  # cg_apply_mass adds them
 
     def _check(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """Cheap checks that keep a wrong argument from reading out of bounds (no allocation)."""

@@ -105,10 +105,13 @@ class SplitLaunch:
         skip: optional; when it returns True, :meth:`launch` does nothing (e.g. the kernel
             would return at once for every element), saving the threads' hand-over. It is not
             asked inside a graph capture, where the decision would be frozen into the graph.
+        add_partials: add the scratch rows into the targets after the ranges (and clear
+            them); False leaves that to the kernel that reads the targets next, which saves
+            a pass over the nodes (``wcut.kernels.cg.cg_apply_mass`` does it).
     """
 
     def __init__(self, team: ThreadTeam, count: int, record: Callable, targets: Sequence[wp.array],
-                 partials: Sequence[wp.array], skip: Callable[[], bool] | None = None):
+                 partials: Sequence[wp.array], skip: Callable[[], bool] | None = None, add_partials: bool = True):
         if len(partials) != len(targets):
             raise ValueError(f"{len(targets)} targets but {len(partials)} scratch arrays")
         for target, partial in zip(targets, partials):
@@ -122,7 +125,7 @@ class SplitLaunch:
         self._parts += [record(lo, hi, [p[c] for p in partials]).launch for c, (lo, hi) in enumerate(ranges[1:])]
         self._sums = [wp.launch(partial_sums.add_partials, t.shape[0], device=t.device, record_cmd=True,
                                 inputs=[p], outputs=[t]) for t, p in zip(targets, partials)] \
-            if team.size > 1 else []
+            if team.size > 1 and add_partials else []
 
     def launch(self) -> None:
         """Run the element ranges concurrently, then add the partial sums into the targets."""
