@@ -124,3 +124,19 @@ def test_a_split_launch_does_nothing_while_told_to_skip():
     skip[0] = False
     split.launch()
     assert y.numpy().any()
+
+
+def test_without_add_partials_the_rows_wait_for_the_next_kernel():
+    pairs = wp.array(np.array([[0, 1], [1, 2], [2, 3], [3, 0]], dtype=np.int32), dtype=wp.vec2i)
+    weights = wp.array(np.array([1.0, 2.0, 3.0, 4.0], dtype=np.float32), dtype=float)
+    whole = wp.zeros(4, dtype=wp.vec3)
+    wp.launch(scatter_pairs, 4, inputs=[pairs, weights], outputs=[whole])
+    y, partials = wp.zeros(4, dtype=wp.vec3), wp.zeros((1, 4), dtype=wp.vec3)
+
+    def record(lo, hi, targets):
+        return wp.launch(scatter_pairs, hi - lo, inputs=[pairs[lo:hi], weights[lo:hi]], outputs=targets,
+                         record_cmd=True)
+
+    SplitLaunch(ThreadTeam(2), 4, record, [y], [partials], add_partials=False).launch()
+    assert partials.numpy().any()  # the second range's share, not yet added
+    np.testing.assert_array_equal(y.numpy() + partials.numpy()[0], whole.numpy())

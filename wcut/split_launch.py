@@ -90,7 +90,8 @@ def _wait_uninterrupted(futures) -> None:
 
 class SplitLaunch:
     """An element kernel recorded as one launch per element range and run on a
-    :class:`ThreadTeam`, followed by the sums of the scatter outputs.
+    :class:`ThreadTeam`, followed (unless ``add_partials`` is False) by the sums of the
+    scatter outputs.
 
     Args:
         team: the threads; one range per thread.
@@ -100,8 +101,9 @@ class SplitLaunch:
             ``[lo:hi]`` and scattering into the nodal arrays ``targets``.
         targets: the nodal arrays the kernel scatters into (``wp.vec3``), in ``record``'s order.
         partials: one scratch array per target, shape ``(team.size - 1, len(target))`` and
-            zero; it is zero again after every :meth:`launch` that ends normally, so launches
-            that never run at the same time may share it (clear it after an interruption).
+            zero; it is zero again once the rows are added (after every :meth:`launch` that
+            ends normally, or by the next kernel), so launches that never run at the same time
+            may share it (clear it after an interruption).
         skip: optional; when it returns True, :meth:`launch` does nothing (e.g. the kernel
             would return at once for every element), saving the threads' hand-over. It is not
             asked inside a graph capture, where the decision would be frozen into the graph.
@@ -128,7 +130,7 @@ class SplitLaunch:
             if team.size > 1 and add_partials else []
 
     def launch(self) -> None:
-        """Run the element ranges concurrently, then add the partial sums into the targets."""
+        """Run the element ranges concurrently, then add the scratch rows into the targets."""
         if self._device.is_capturing:
             for part in self._parts:
                 part()
