@@ -19,6 +19,14 @@ def clamped_beam(cells=(8, 2, 2), **material):
     return mesh, Model(mesh, fixed=mesh.vertices_in_box((-1, -1, -1), (1e-9, 1, 1)), **params), params
 
 
+@pytest.fixture
+def split_products(monkeypatch):
+    """Split the CG products over the threads too, however small the model."""
+    from wcut import solver as solver_module
+
+    monkeypatch.setattr(solver_module, "PRODUCT_ELEMENTS_PER_THREAD", {1: 1, 2: 1})
+
+
 def run(model, solver, steps, dt, control=None, state=None):
     state = state or model.state()
     scratch = model.state()
@@ -210,14 +218,17 @@ def test_divergence_is_reported():
         solver.check_finite()
 
 
-@pytest.mark.parametrize("cpu_threads", [1, 2])
-def test_step_allocates_nothing(cpu_threads):
+@pytest.mark.parametrize("cpu_threads, products_too", [(1, False), (2, False), (2, True)])
+def test_step_allocates_nothing(cpu_threads, products_too, request):
     import io
     import re
 
+    if products_too:
+        request.getfixturevalue("split_products")
     mesh = wcut.beam(4, 2, 2, size=(0.2, 0.05, 0.05))
     model = Model(mesh, fixed=[0, 1, 2], attachments=Attachments.at_vertices([40], 10.0), rayleigh_mass=0.1)
     solver = SolverCorotational(model, cg_iterations=10, cpu_threads=cpu_threads)
+    assert solver.split_product == products_too
     a, b, control = model.state(), model.state(), model.control()
     report = io.StringIO()
     with wp.ScopedMemoryTracker("step", print=False) as tracker:
@@ -434,7 +445,7 @@ def _p1_and_p2_beams():
 
 
 @pytest.mark.parametrize("order", [1, 2])
-def test_element_kernels_split_over_threads_equal_one_launch(order):
+def test_element_kernels_split_over_threads_equal_one_launch(order, split_products):
     mesh, model = _p1_and_p2_beams()[order - 1]
     rng = np.random.default_rng(order)
     q, dv = mesh.vertices + 0.01 * rng.normal(size=mesh.vertices.shape), rng.normal(size=mesh.vertices.shape)
@@ -462,7 +473,7 @@ def test_element_kernels_split_over_threads_equal_one_launch(order):
 
 
 @pytest.mark.parametrize("order", [1, 2])
-def test_steps_split_over_threads_follow_single_thread_steps(order):
+def test_steps_split_over_threads_follow_single_thread_steps(order, split_products):
     mesh, model = _p1_and_p2_beams()[order - 1]
     ends = [run(model, SolverCorotational(model, cg_iterations=300, cg_tolerance=1e-6, cpu_threads=threads), 15,
                 0.01).particle_q.numpy() for threads in (1, 2)]
@@ -475,11 +486,16 @@ def test_cpu_threads_default_to_one_for_small_models_and_are_checked(monkeypatch
     from wcut import solver as solver_module
 
     _, model = _p1_and_p2_beams()[0]
+    assert model.tet_count < 1000
     assert SolverCorotational(model).cpu_threads == 1
-    assert SolverCorotational(model, cpu_threads=8).cpu_threads == 8
-    monkeypatch.setitem(solver_module.ELEMENTS_PER_THREAD, 1, 10)
+    pinned = SolverCorotational(model, cpu_threads=8)
+    assert pinned.cpu_threads == 8 and not pinned.split_product  # too small a model to split products
+    monkeypatch.setitem(solver_module.FORCES_ELEMENTS_PER_THREAD, 1, 10)
     monkeypatch.setattr(solver_module, "available_cores", lambda: 3)
-    assert SolverCorotational(model).cpu_threads == 3  # one per 10 elements, at most the cores
+    auto = SolverCorotational(model)
+    assert auto.cpu_threads == 3 and not auto.split_product  # one per 10 elements, at most the cores
+    monkeypatch.setitem(solver_module.PRODUCT_ELEMENTS_PER_THREAD, 1, model.tet_count // 2)
+    assert SolverCorotational(model).split_product  # twice as many elements as a thread's product
     for bad in (0, 9, 2.0, True):
         with pytest.raises(SimulationError, match="cpu_threads"):
             SolverCorotational(model, cpu_threads=bad)
@@ -487,7 +503,7 @@ def test_cpu_threads_default_to_one_for_small_models_and_are_checked(monkeypatch
     assert SolverCorotational(model, cpu_threads=4).cpu_threads == 1
 
 
-def test_a_split_step_inside_a_users_capture_replays_every_range():
+def test_a_split_step_inside_a_users_capture_replays_every_range(split_products):
     """Warp records launches per thread: inside a capture the ranges run on the capturing
     thread, so that the graph holds them all."""
     mesh, model = _p1_and_p2_beams()[0]
@@ -509,7 +525,7 @@ def test_a_split_step_inside_a_users_capture_replays_every_range():
     assert np.abs(ends[1] - ends[0]).max() < 1e-5 * sag
 
 
-def test_a_step_after_an_interrupted_split_launch_starts_from_clean_scratch():
+def test_a_step_after_an_interrupted_split_launch_starts_from_clean_scratch(split_products):
     mesh, model = _p1_and_p2_beams()[1]
     clean = SolverCorotational(model, cpu_threads=2)
     dirty = SolverCorotational(model, cpu_threads=2)
@@ -517,3 +533,21 @@ def test_a_step_after_an_interrupted_split_launch_starts_from_clean_scratch():
         partial.fill_(wp.vec3(1.0, 2.0, 3.0))
     assert np.array_equal(run(model, dirty, 3, 0.01).particle_q.numpy(),
                           run(model, clean, 3, 0.01).particle_q.numpy())
+
+
+def test_a_split_element_pass_before_a_captured_solve_equals_launched_steps(monkeypatch):
+    """The element pass on threads (launched each step) and the rest of the step from a graph."""
+    from wcut import solver as solver_module
+
+    monkeypatch.setitem(solver_module.FORCES_ELEMENTS_PER_THREAD, 1, 10)
+    monkeypatch.setattr(solver_module, "available_cores", lambda: 2)
+    mesh, model, tip = _pulled_beam()
+    targets = [mesh.vertices[tip] + [0.0, 0.0, 0.002 * k] for k in range(12)]
+    captured = SolverCorotational(model, cg_iterations=30)
+    launched = SolverCorotational(model, cg_iterations=30, graph_capture=False)
+    assert captured.cpu_threads == 2 and not captured.split_product
+    a, b = _steps(model, captured, targets, 0.01), _steps(model, launched, targets, 0.01)
+    assert len(captured._graphs) == 2 and not launched._graphs
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    one = _steps(model, SolverCorotational(model, cg_iterations=30, cpu_threads=1), targets, 0.01)
+    assert np.abs(a[-1] - one[-1]).max() < 1e-5 * np.abs(one[-1] - mesh.vertices).max()

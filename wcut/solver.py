@@ -35,9 +35,12 @@ from .split_launch import MAX_THREADS, SplitLaunch, ThreadTeam, available_cores
 GRAPH_CACHE_SIZE = 4
 
 #: elements per CPU thread (by element order) below which another thread costs more than it
-#: saves: on the 2-core development machine, handing a launch to a thread and hearing back
-#: costs about 0.1 ms, and the element product 20-40 ns (P1) or 130-290 ns (P2) per element
-ELEMENTS_PER_THREAD = {1: 20000, 2: 2000}
+#: saves, for the once-per-step element kernel and for the product of every CG iteration: on
+#: the 2-core development machine, handing a launch to a thread and hearing back costs about
+#: 0.1 ms, the element kernel about 390 ns (P1) or 2500 ns (P2) per element, the product
+#: 20-40 ns or 130-290 ns
+FORCES_ELEMENTS_PER_THREAD = {1: 1000, 2: 200}
+PRODUCT_ELEMENTS_PER_THREAD = {1: 20000, 2: 2000}
 
 
 def _thread_count(cpu_threads, model: Model) -> int:
@@ -48,7 +51,7 @@ def _thread_count(cpu_threads, model: Model) -> int:
     if not model.device.is_cpu or model.tet_count == 0 or wp.config.mode == "debug":
         return 1  # (debug mode: see wcut.split_launch)
     if cpu_threads is None:
-        wanted = model.tet_count // ELEMENTS_PER_THREAD[model.tet_order]
+        wanted = model.tet_count // FORCES_ELEMENTS_PER_THREAD[model.tet_order]
         return max(1, min(wanted, available_cores(), MAX_THREADS))
     return min(int(cpu_threads), model.tet_count)
 
@@ -78,12 +81,14 @@ class SolverCorotational:
             either way; False gives the thesis's (and SOFA's) ``R K R^T`` system.
         graph_capture: replay repeated steps from a captured graph (see :meth:`step`); the
             results are the same bit for bit. False launches every kernel from Python.
-        cpu_threads: threads that share the element kernels (forces and the product of every
-            CG iteration) on a CPU device, each over its own range of elements
-            (:mod:`wcut.split_launch`); None picks one per :data:`ELEMENTS_PER_THREAD` elements,
-            at most the cores this process may use and :data:`wcut.split_launch.MAX_THREADS`.
-            A split step is not graph-captured: a graph replays its launches one after
-            another (inside a capture of the user's, the ranges are recorded one after
+        cpu_threads: threads that share the element kernels on a CPU device, each over its
+            own range of elements (:mod:`wcut.split_launch`). None picks one per
+            :data:`FORCES_ELEMENTS_PER_THREAD` elements, at most the cores this process may use
+            and :data:`wcut.split_launch.MAX_THREADS`, for the once-per-step element kernel; a
+            number sets it. The product of every CG iteration is split over them too once the
+            model has twice :data:`PRODUCT_ELEMENTS_PER_THREAD` elements. With
+            ``graph_capture``, what is not split is still captured (a graph replays its launches
+            one after another; inside a capture of the user's, the ranges are recorded one after
             another and the results stay right). Ignored on CUDA and in Warp's debug mode.
 
     ``step`` allocates nothing: every array it touches is created here. The conjugate-gradient
@@ -118,6 +123,9 @@ class SolverCorotational:
         self._r, self._z, self._p, self._q = vec(), vec(), vec(), vec()
         self._elements = tet_p2 if model.tet_order == 2 else tet_p1  # the kernels of the element family
         self.cpu_threads = _thread_count(cpu_threads, model)
+        #: whether the product of every CG iteration is split over ``cpu_threads`` too
+        self.split_product = (self.cpu_threads > 1
+                              and model.tet_count >= 2 * PRODUCT_ELEMENTS_PER_THREAD[model.tet_order])
         self._team = ThreadTeam(self.cpu_threads)
         # scratch of the split element kernels' scatters into _force, particle_diagonal and _q
         # (no rows on one thread: cg_apply_mass reads the last one either way)
@@ -134,6 +142,7 @@ class SolverCorotational:
         self._cg_commands: list = []  # recorded launches, or SplitLaunch objects: anything with launch()
         self.graph_capture = bool(graph_capture)
         self._graphs: dict = {}  # capture key -> (graph, the objects whose ids the key holds)
+        self._element_passes: dict = {}  # the same for split element passes: key -> (SplitLaunch, held)
         self._seen: deque = deque(maxlen=2 * GRAPH_CACHE_SIZE)  # keys stepped lately: their next step captures
 
     @property
@@ -166,7 +175,16 @@ class SolverCorotational:
         targets = [self._force, self.particle_diagonal, self._q]
         if self.cpu_threads == 1:
             return launch(0, m.tet_count, targets, record)
-        split = SplitLaunch(self._team, m.tet_count, launch, targets, self._partials)
+        # recording the ranges costs about 0.5 ms: kept per states and settings, as graphs are
+        held = (state_in.particle_q, state_in.particle_qd, state_in.tet_rotation, state_out.tet_rotation)
+        key = (tuple(id(a) for a in held), dt, m.rayleigh_stiffness, self.rotation_iterations,
+               self.rotation_tolerance, self.rotation_stiffness)
+        split = self._element_passes.get(key, (None,))[0]
+        if split is None:
+            if len(self._element_passes) >= GRAPH_CACHE_SIZE:
+                self._element_passes.pop(next(iter(self._element_passes)))
+            split = SplitLaunch(self._team, m.tet_count, launch, targets, self._partials)
+            self._element_passes[key] = (split, held)  # held alive, their ids stay theirs
         if not record:
             split.launch()
         return split
@@ -238,7 +256,7 @@ class SolverCorotational:
                                      stiffness_scale, k, self._rz, self._norms],
                              outputs=targets)
 
-        if self.cpu_threads == 1:
+        if not self.split_product:
             return record(0, m.tet_count, [self._q])
         rz, threshold = self._rz.numpy(), self._norms.numpy()  # views: on the CPU they are host memory
         return SplitLaunch(self._team, m.tet_count, record, [self._q], self._partials[2:],
@@ -274,26 +292,32 @@ class SolverCorotational:
         (``wp.capture_launch``): on the CPU, Warp replays it in a native loop, without the
         Python cost of some 300 launches per step (10 us each), which dominates small
         models. The graph holds the arrays the states and control had at capture: write
-        into them (``assign``, ``numpy()`` views), do not replace them.
+        into them (``assign``, ``numpy()`` views), do not replace them. An element kernel
+        split over threads runs outside the graph (before it, for the element pass); with
+        the product split too, nothing is captured.
         """
         self._check(state_in, state_out, control, dt)
         m = self.model
         if self._recorded_for != (dt, m.rayleigh_stiffness, self.cg_tolerance):
             self._record_cg(dt)
-        if not self.graph_capture or self.cpu_threads > 1:
+        if not self.graph_capture or self.split_product:
             self._launch_step(state_in, state_out, control, dt)
             return
+        captured = self._launch_step
+        if self.cpu_threads > 1:  # the split element pass from here, the rest in the graph
+            self._launch_element_part(state_in, state_out, dt)
+            captured = self._launch_solve_part
         key, held = self._capture_key(state_in, state_out, control, dt)
         graph = self._graphs.get(key)
         if graph is None and key in self._seen:
             with wp.ScopedCapture(device=m.device) as capture:
-                self._launch_step(state_in, state_out, control, dt)
+                captured(state_in, state_out, control, dt)
             if len(self._graphs) >= GRAPH_CACHE_SIZE:
                 self._graphs.pop(next(iter(self._graphs)))
             graph = self._graphs[key] = (capture.graph, held)  # held alive, their ids stay theirs
         if graph is None:
             self._seen.append(key)
-            self._launch_step(state_in, state_out, control, dt)
+            captured(state_in, state_out, control, dt)
         else:
             wp.capture_launch(graph[0])
 
@@ -311,17 +335,25 @@ class SolverCorotational:
 
     def _launch_step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
         """The launches of one step (see the module's docstring)."""
-        m, d = self.model, self.model.device
+        self._launch_element_part(state_in, state_out, dt)
+        self._launch_solve_part(state_in, state_out, control, dt)
+
+    def _launch_element_part(self, state_in: State, state_out: State, dt: float) -> None:
+        """Step 1 of a step: the element pass of the tetrahedra, into cleared sums."""
         self._force.zero_()
         self.particle_diagonal.zero_()
         self._q.zero_()
+        for partial in self._partials:  # zero unless a split launch was interrupted
+            partial.zero_()
+        if self.model.tet_count:
+            self.launch_element_pass(state_in, state_out, dt)
+
+    def _launch_solve_part(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
+        """Steps 1 (shells) to 5 of a step, after :meth:`_launch_element_part`."""
+        m, d = self.model, self.model.device
         self._rz.zero_()
         self._pq.zero_()
         self._norms.zero_()
-        for partial in self._partials:  # zero unless a split launch was interrupted
-            partial.zero_()
-        if m.tet_count:
-            self.launch_element_pass(state_in, state_out, dt)
         if m.tri_count:
             self.launch_shell_pass(state_in, dt)
         if m.attachment_count:
