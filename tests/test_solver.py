@@ -551,3 +551,59 @@ def test_a_split_element_pass_before_a_captured_solve_equals_launched_steps(monk
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
     one = _steps(model, SolverCorotational(model, cg_iterations=30, cpu_threads=1), targets, 0.01)
     assert np.abs(a[-1] - one[-1]).max() < 1e-5 * np.abs(one[-1] - mesh.vertices).max()
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_step_inside_a_users_capture_after_captured_steps_goes_into_it(threads, monkeypatch):
+    """The solver captures its own steps; inside the user's capture it launches into that one
+    instead (a second capture would fail, a replay of its own graph would run at once)."""
+    from wcut import solver as solver_module
+
+    monkeypatch.setitem(solver_module.FORCES_ELEMENTS_PER_THREAD, 1, 10)  # threads for the element pass
+    mesh, model, tip = _pulled_beam()
+    control = model.control()
+    control.attachment_target.assign(np.asarray([mesh.vertices[tip] + [0.0, 0.0, 0.01]], dtype=np.float32))
+    ends = []
+    for user_capture in (False, True):
+        solver = SolverCorotational(model, cg_iterations=30, cpu_threads=threads)
+        a, b = model.state(), model.state()
+        for _ in range(4):  # its own graphs captured for both directions
+            solver.step(a, b, control, 0.01)
+            a, b = b, a
+        if user_capture:
+            with wp.ScopedCapture(device=model.device) as capture:
+                solver.step(a, b, control, 0.01)
+                solver.step(b, a, control, 0.01)
+            for _ in range(3):
+                wp.capture_launch(capture.graph)
+        else:
+            for _ in range(6):
+                solver.step(a, b, control, 0.01)
+                a, b = b, a
+        ends.append(a.particle_q.numpy())
+    assert np.abs(ends[0] - mesh.vertices).max() > 1e-3
+    np.testing.assert_array_equal(ends[1], ends[0])
+
+
+def test_the_split_element_pass_follows_a_new_time_step_and_new_settings(monkeypatch):
+    """The split element pass is recorded once per states and settings: a new dt, damping or
+    rotation setting records it again (compared with one thread, which records nothing)."""
+    from wcut import solver as solver_module
+
+    monkeypatch.setitem(solver_module.FORCES_ELEMENTS_PER_THREAD, 1, 10)
+    mesh, model, tip = _pulled_beam()
+    targets = [mesh.vertices[tip] + [0.0, 0.0, 0.002 * k] for k in range(12)]
+    dt = [0.01] * 4 + [0.005] * 8
+    ends = []
+    for threads in (1, 2):
+        solver = SolverCorotational(model, cg_iterations=200, cg_tolerance=1e-7, cpu_threads=threads)
+        first = _steps(model, solver, targets[:8], dt[:8])
+        model.rayleigh_stiffness = 0.05
+        solver.rotation_stiffness = False
+        ends.append(first + _steps(model, solver, targets[8:], dt[8:]))
+        model.rayleigh_stiffness = 0.0
+    assert solver.cpu_threads == 2 and len(solver._element_passes) >= 3
+    scale = np.abs(ends[0][-1] - mesh.vertices).max()  # 2.5 mm; a stale pass drifts by millimetres
+    assert scale > 1e-3
+    for one, two in zip(*ends):
+        assert np.abs(two - one).max() < 1e-4 * scale

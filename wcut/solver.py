@@ -128,8 +128,8 @@ class SolverCorotational:
                               and model.tet_count >= 2 * PRODUCT_ELEMENTS_PER_THREAD[model.tet_order])
         self._team = ThreadTeam(self.cpu_threads)
         # scratch of the split element kernels' scatters into _force, particle_diagonal and _q
-        # (no rows on one thread: cg_apply_mass reads the last one either way)
         self._partials = [wp.zeros((self.cpu_threads - 1, n), dtype=wp.vec3, device=d) for _ in range(3)]
+        self._no_partials = wp.zeros((0, n), dtype=wp.vec3, device=d)  # for cg_apply_mass when the product is whole
         self.tet_rotated_gradients = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33, device=d)
         self.tet_rotation_stiffness = wp.zeros(model.tet_rotation_shape, dtype=wp.mat33, device=d)  # V mu units
         self.tri_rotation = wp.zeros((model.tri_count, 3), dtype=tri_p2.mat32, device=d)
@@ -210,6 +210,7 @@ class SolverCorotational:
         m, n, d = self.model, self.model.particle_count, self.model.device
         r, z, p, q, rz, pq, norms = self._r, self._z, self._p, self._q, self._rz, self._pq, self._norms
         stiffness_scale = self.stiffness_scale(dt)
+        product_partials = self._partials[2] if self.split_product else self._no_partials
         cmds = [wp.launch(cg.cg_init, n, device=d, record_cmd=True,
                           inputs=[self.rhs, self.inv_diagonal, self.mass_scale, self.dv, self.cg_tolerance ** 2],
                           outputs=[q, r, z, p, rz, norms])]
@@ -234,7 +235,7 @@ class SolverCorotational:
                                       outputs=[q]))
             cmds.append(wp.launch(cg.cg_apply_mass, n, device=d, record_cmd=True,
                                   inputs=[k, self.inv_diagonal, self.mass_scale, p, rz, norms],
-                                  outputs=[self._partials[2], q, pq]))
+                                  outputs=[product_partials, q, pq]))
             cmds.append(wp.launch(cg.cg_update, n, device=d, record_cmd=True,
                                   inputs=[k, self.inv_diagonal, p, pq, norms],
                                   outputs=[self.dv, r, z, q, rz]))
@@ -300,8 +301,8 @@ class SolverCorotational:
         m = self.model
         if self._recorded_for != (dt, m.rayleigh_stiffness, self.cg_tolerance):
             self._record_cg(dt)
-        if not self.graph_capture or self.split_product:
-            self._launch_step(state_in, state_out, control, dt)
+        if not self.graph_capture or self.split_product or m.device.is_capturing:
+            self._launch_step(state_in, state_out, control, dt)  # (inside the user's capture: into it)
             return
         captured = self._launch_step
         if self.cpu_threads > 1:  # the split element pass from here, the rest in the graph
