@@ -16,6 +16,8 @@ on the CPU: the per-element add to one address serialises the element loop.)
 
 import warp as wp
 
+from .partial_sums import take_partials
+
 
 @wp.kernel
 def cg_init(
@@ -79,10 +81,7 @@ def cg_apply_mass(
     if rz[k] <= threshold[0]:
         return
     i = wp.tid()
-    qi = q[i]
-    for c in range(partials.shape[0]):
-        qi = qi + partials[c, i]
-        partials[c, i] = wp.vec3(0.0)
+    qi = take_partials(partials, i, q[i])
     if inv_diagonal[i][0] == 0.0:
         q[i] = wp.vec3(0.0)
         return

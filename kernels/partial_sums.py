@@ -8,12 +8,18 @@ of elements, concurrently; the first range scatters into the real nodal array an
 import warp as wp
 
 
-@wp.kernel
-def add_partials(partials: wp.array2d(dtype=wp.vec3), total: wp.array(dtype=wp.vec3)):
-    """``total[i] += sum_c partials[c, i]``, then ``partials[:, i] = 0`` (ready for the next launch)."""
-    i = wp.tid()
-    s = total[i]
+@wp.func
+def take_partials(partials: wp.array2d(dtype=wp.vec3), i: int, value: wp.vec3):
+    """``value + sum_c partials[c, i]``, leaving ``partials[:, i] = 0`` (ready for the next launch)."""
+    s = value
     for c in range(partials.shape[0]):
         s = s + partials[c, i]
         partials[c, i] = wp.vec3(0.0)
-    total[i] = s
+    return s
+
+
+@wp.kernel
+def add_partials(partials: wp.array2d(dtype=wp.vec3), total: wp.array(dtype=wp.vec3)):
+    """``total[i] += sum_c partials[c, i]``, then ``partials[:, i] = 0``."""
+    i = wp.tid()
+    total[i] = take_partials(partials, i, total[i])

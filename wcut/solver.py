@@ -43,6 +43,16 @@ FORCES_ELEMENTS_PER_THREAD = {1: 1000, 2: 200}
 PRODUCT_ELEMENTS_PER_THREAD = {1: 20000, 2: 2000}
 
 
+def _keep(cache: dict, key: tuple, value, held: tuple) -> tuple:
+    """Store ``(value, held)`` under ``key``, dropping the oldest entry beyond
+    :data:`GRAPH_CACHE_SIZE`; ``held`` are the arrays whose ids the key holds, kept alive so
+    that a later array cannot take one's id. Returns the entry."""
+    if len(cache) >= GRAPH_CACHE_SIZE:
+        cache.pop(next(iter(cache)))
+    cache[key] = (value, held)
+    return cache[key]
+
+
 def _thread_count(cpu_threads, model: Model) -> int:
     """The validated ``cpu_threads`` of :class:`SolverCorotational` (1 on CUDA)."""
     if cpu_threads is not None and (isinstance(cpu_threads, bool) or not isinstance(cpu_threads, (int, np.integer))
@@ -181,10 +191,8 @@ class SolverCorotational:
                self.rotation_tolerance, self.rotation_stiffness)
         split = self._element_passes.get(key, (None,))[0]
         if split is None:
-            if len(self._element_passes) >= GRAPH_CACHE_SIZE:
-                self._element_passes.pop(next(iter(self._element_passes)))
             split = SplitLaunch(self._team, m.tet_count, launch, targets, self._partials)
-            self._element_passes[key] = (split, held)  # held alive, their ids stay theirs
+            _keep(self._element_passes, key, split, held)
         if not record:
             split.launch()
         return split
@@ -313,9 +321,7 @@ class SolverCorotational:
         if graph is None and key in self._seen:
             with wp.ScopedCapture(device=m.device) as capture:
                 captured(state_in, state_out, control, dt)
-            if len(self._graphs) >= GRAPH_CACHE_SIZE:
-                self._graphs.pop(next(iter(self._graphs)))
-            graph = self._graphs[key] = (capture.graph, held)  # held alive, their ids stay theirs
+            graph = _keep(self._graphs, key, capture.graph, held)
         if graph is None:
             self._seen.append(key)
             captured(state_in, state_out, control, dt)
