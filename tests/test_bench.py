@@ -78,13 +78,20 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     (snap,) = [m for m in methods if m["method"] == "snap"]
     assert snap["added_elements_per_cut_element"] == 0.0  # it only moves and duplicates vertices
 
+    # the compiled 1-4 splits and 2-3 flips against the Python ones, on the same plane
+    operators = written["topology_operators"]
+    assert operators["name"] == "tiny_cut" and operators["splits"] == 100 and operators["flips"] > 50
+    assert operators["python_ms"] > 0 and operators["compiled_ms"] > 0
+    assert abs(operators["speedup"] - operators["python_ms"] / operators["compiled_ms"]) <= 0.06 * operators["speedup"]
+    assert "compiled ms" in out
+
 
 def test_benchmark_without_cut_scenes_reports_no_cut_results(tmp_path):
     result = run_benchmarks(tmp_path / "bench.json", quick=True, progress=False, scenes=(), cut_scenes=(),
                             p2_scenes=(), ar_frames=0)
     assert result["scenes"] == [] and result["cut_events"] == [] and result["quadratic"] == []
     assert "ar_loop" not in result and "ar_detection" not in result
-    assert "cut_event_size_ratio" not in result and "cut_methods" not in result
+    assert "cut_event_size_ratio" not in result and "cut_methods" not in result and "topology_operators" not in result
     assert json.loads((tmp_path / "bench.json").read_text()) == result
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from .errors import WcutError
 from .io import atomic_path, check_writable
 from .mesh import beam, edge_matrices
 from .model import Model
@@ -311,6 +312,60 @@ def bench_cut_event(name: str, cells, size, *, repeats: int = 7) -> dict:
     }
 
 
+def bench_topology_operators(name: str, cells, size, *, repeats: int = 5) -> dict:
+    """The 1-4 splits of the elements the cut-event plane crosses (at their centroids), then
+    the 2-3 flips of the faces two of them share, in order, by the Python operators on
+    ``TetTopology`` and by the compiled ones on ``TetArrays`` (one launch per batch; the
+    faces' slots found between the two launches are not timed). The first run compiles."""
+    from .topology import TetTopology, TopologyError, face_key, flip23, split_tet
+    from .topology.arrays import TetArrays
+
+    mesh, _, _, plane = _cut_setup(cells, size)
+    side = plane.signed_distance(mesh.vertices)[mesh.tets]
+    crossed = np.flatnonzero((side.min(axis=1) < 0) & (side.max(axis=1) > 0))
+    owners: dict = {}
+    for t in crossed.tolist():
+        tet = mesh.tets[t].tolist()
+        for k in range(4):
+            owners.setdefault(face_key(*(tet[:k] + tet[k + 1:])), []).append(t)
+    keys = sorted(key for key, around in owners.items() if len(around) == 2)
+    weights = np.full((len(crossed), 4), 0.25)
+    python_s, compiled_s = [], []
+    for _ in range(repeats + 1):
+        topo = TetTopology(mesh)
+        start = time.perf_counter()
+        for t in crossed.tolist():
+            split_tet(topo, t, weights[0])
+        flips = 0
+        for key in keys:
+            try:
+                flip23(topo, key)
+                flips += 1
+            except TopologyError:
+                pass
+        python_s.append(time.perf_counter() - start)
+        arrays = TetArrays(mesh, device="cpu")
+        start = time.perf_counter()
+        arrays.split_tets(crossed, weights)
+        middle = time.perf_counter()
+        tets, live = arrays.tet_indices.numpy(), arrays.live_tets()
+        slot_of = {}
+        for t in live[np.any(tets[live] >= mesh.vertex_count, axis=1)].tolist():
+            tet = tets[t].tolist()
+            for k in range(4):
+                slot_of[face_key(*(tet[:k] + tet[k + 1:]))] = (t, k)
+        faces = [slot_of[key] for key in keys]
+        resumed = time.perf_counter()
+        compiled_flips = arrays.flip_faces(faces).count(None)
+        compiled_s.append(time.perf_counter() - resumed + middle - start)
+    if compiled_flips != flips:
+        raise WcutError(f"topology operators bench: {flips} Python flips, {compiled_flips} compiled")
+    python_ms, compiled_ms = statistics.median(python_s[1:]) * 1e3, statistics.median(compiled_s[1:]) * 1e3
+    return {"name": name, "tets": mesh.tet_count, "splits": len(crossed), "flips": flips,
+            "python_ms": round(python_ms, 3), "compiled_ms": round(compiled_ms, 3),
+            "speedup": round(python_ms / compiled_ms, 1)}
+
+
 def bench_cut_methods(cells, size, epsilons=(0.0, 0.1)) -> list[dict]:
     """Nodes and elements each method adds per cut element for the cut-event plane (thesis
     5.2.1: about 2 nodes per cut element for paulus, 4.2 to 5.6 for Bielser)."""
@@ -371,6 +426,7 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
     if cut_scenes:
         result["cut_event_size_ratio"] = round(cut_events[-1]["event_ms"] / cut_events[0]["event_ms"], 2)
         result["cut_methods"] = bench_cut_methods(*cut_scenes[0][1:])
+        result["topology_operators"] = bench_topology_operators(*cut_scenes[0], repeats=2 if quick else 5)
     if records:
         _print_table(records)
     if cut_scenes:
@@ -381,6 +437,9 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
                                             ("added_nodes_per_cut_element", "nodes/cut el"),
                                             ("added_elements_per_cut_element", "elements/cut el"),
                                             ("components", "pieces")])
+        _print_rows([result["topology_operators"]], [("name", "operators"), ("splits", "1-4 splits"),
+                                                     ("flips", "2-3 flips"), ("python_ms", "python ms"),
+                                                     ("compiled_ms", "compiled ms"), ("speedup", "speedup")])
     if quadratic:
         _print_rows(quadratic, [("name", "quadratic"), ("tets", "tets"), ("nodes", "nodes"), ("step_ms", "step ms"),
                                 ("steps_per_second", "steps/s"), ("cpu_threads", "threads"),

@@ -5,6 +5,9 @@
   (edge removal), edge bisection, vertex move (snapping), unsew, vertex duplication.
 - :class:`TopologyChange`: how the mesh after a change derives from the mesh before.
 - ``check``: the invariants, verified from scratch.
+- ``arrays``: :class:`~wcut.topology.arrays.TetArrays`, the mesh as flat arrays with face
+  neighbours, edited by compiled operators (``wcut.kernels.topology``: so far the 1-4 split
+  and the 2-3 flip), one launch per batch; the cutter does not use it yet.
 - ``shell``: the operators of quadratic shells that fracture uses (open edges, move nodes,
   split a triangle into four) and their check (thesis 6.2).
 """

@@ -1,0 +1,217 @@
+"""The compiled topology operators on flat arrays (wcut.topology.arrays, wcut.kernels.topology)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from wcut.errors import WcutError
+from wcut.mesh import TetMesh, beam, tet_volumes
+from wcut.topology import TetTopology, TopologyError, face_key, flip23, split_tet
+from wcut.topology.arrays import TetArrays, face_neighbors
+
+
+def small() -> TetMesh:
+    return beam(4, 2, 2, size=(0.4, 0.2, 0.2))
+
+
+def volume(mesh: TetMesh) -> float:
+    return float(tet_volumes(mesh.vertices, mesh.tets).sum())
+
+
+def element_set(mesh: TetMesh, decimals: int = 12) -> list:
+    """The elements as sorted tuples of rounded corner coordinates: equal for two meshes with
+    the same elements, whatever the numbering of vertices and elements."""
+    corners = np.round(mesh.vertices[mesh.tets], decimals)
+    return sorted(tuple(sorted(map(tuple, tet.tolist()))) for tet in corners)
+
+
+def slot_of_face(arrays: TetArrays, key) -> tuple[int, int]:
+    """(element, corner opposite) of a face given by its vertices, in the arrays."""
+    tets = arrays.tet_indices.numpy()
+    for t in arrays.live_tets().tolist():
+        tet = tets[t].tolist()
+        if set(key) <= set(tet):
+            return t, next(k for k in range(4) if tet[k] not in key)
+    raise AssertionError(f"face {key} not found")
+
+
+def test_face_neighbors_from_scratch_are_mutual_and_match_the_faces():
+    mesh = small()
+    neighbors = face_neighbors(mesh.tets)
+    for t, tet in enumerate(mesh.tets.tolist()):
+        for k in range(4):
+            n = neighbors[t, k]
+            face = set(tet) - {tet[k]}
+            if n < 0:
+                assert sum(face <= set(other) for other in mesh.tets.tolist()) == 1
+            else:
+                assert face <= set(mesh.tets[n].tolist())
+                assert t in neighbors[n].tolist()
+
+
+def test_face_neighbors_refuse_a_face_in_three_elements():
+    tets = np.array([[0, 1, 2, 3], [0, 1, 2, 4], [0, 1, 2, 5]])
+    with pytest.raises(TopologyError, match="more than two"):
+        face_neighbors(tets)
+
+
+def test_arrays_of_a_mesh_are_valid_and_give_it_back():
+    mesh = small()
+    arrays = TetArrays(mesh)
+    arrays.check(volume(mesh))
+    back = arrays.to_mesh()
+    assert np.array_equal(back.tets, mesh.tets) and np.array_equal(back.vertices, mesh.vertices)
+
+
+def test_check_catches_a_wrong_neighbour():
+    arrays = TetArrays(small())
+    neighbors = arrays.tet_neighbors.numpy()
+    t = int(np.flatnonzero((neighbors >= 0).any(axis=1))[0])
+    k = int(np.flatnonzero(neighbors[t] >= 0)[0])
+    neighbors[t, k] = -1
+    arrays.tet_neighbors.assign(neighbors)
+    with pytest.raises(TopologyError, match="neighbours"):
+        arrays.check()
+
+
+def test_split_carries_attributes_and_records_the_vertex():
+    mesh = small()
+    rng = np.random.default_rng(0)
+    positions = mesh.vertices + 0.01 * rng.standard_normal(mesh.vertices.shape)
+    velocities = rng.standard_normal(mesh.vertices.shape)
+    arrays = TetArrays(mesh, positions, velocities)
+    w = np.array([0.1, 0.2, 0.3, 0.4])
+    assert arrays.split_tets([5], [w]) == [None]
+    v = mesh.vertex_count
+    corners = mesh.tets[5]
+    assert arrays.vertex_count == v + 1 and len(arrays.live_tets()) == mesh.tet_count + 3
+    np.testing.assert_allclose(arrays.vertex_rest.numpy()[v], w @ mesh.vertices[corners], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(arrays.vertex_q.numpy()[v], w @ positions[corners], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(arrays.vertex_qd.numpy()[v], w @ velocities[corners], rtol=0, atol=1e-14)
+    assert arrays.vertex_parents.numpy()[v].tolist() == corners.tolist()
+    np.testing.assert_array_equal(arrays.vertex_weights.numpy()[v], w)
+    live = arrays.live_tets()
+    assert (arrays.tet_parent.numpy()[live][-3:] == 5).all() and arrays.tet_parent.numpy()[5] == 5
+    arrays.check(volume(mesh), 1e-12)
+
+
+@pytest.mark.parametrize("weights, reason", [
+    ([0.5, 0.5, 0.0, 0.0], "inverted or flat"),  # on an edge: two flat children
+    ([0.5, 0.5, 0.5, -0.5], "inverted or flat"),  # outside
+    ([0.3, 0.3, 0.3, 0.3], "not an operator's input"),  # does not sum to 1
+    ([np.nan, 0.5, 0.25, 0.25], "not an operator's input"),
+])
+def test_a_refused_split_changes_nothing(weights, reason):
+    mesh = small()
+    arrays = TetArrays(mesh)
+    before = {name: getattr(arrays, name).numpy().copy() for name in TetArrays._TYPES}
+    result = arrays.split_tets([3], [weights])
+    assert result[0] is not None and reason in result[0]
+    assert arrays.vertex_count == mesh.vertex_count and arrays.slot_count == mesh.tet_count
+    for name, value in before.items():
+        np.testing.assert_array_equal(getattr(arrays, name).numpy(), value, err_msg=name)
+
+
+def test_split_of_a_dead_or_missing_element_is_refused():
+    arrays = TetArrays(small())
+    assert "input" in arrays.split_tets([10_000], [[0.25] * 4])[0]
+    assert arrays.split_tets([0, 0], [[0.25] * 4] * 2) == [None, None]  # slot 0 lives on: its first child
+    assert "input" in arrays.split_tets([-1], [[0.25] * 4])[0]
+
+
+def test_splits_grow_the_arrays_when_full_and_go_on():
+    mesh = small()
+    arrays = TetArrays(mesh, spare=2)
+    slots = np.arange(mesh.tet_count)
+    assert arrays.split_tets(slots, np.full((len(slots), 4), 0.25)) == [None] * len(slots)
+    assert len(arrays.live_tets()) == 4 * mesh.tet_count and arrays.vertex_count == mesh.vertex_count + len(slots)
+    arrays.check(volume(mesh), 1e-12)
+
+
+def test_split_tets_rejects_mismatched_weights():
+    with pytest.raises(WcutError, match="2 elements and 1 weights"):
+        TetArrays(small()).split_tets([0, 1], [[0.25] * 4])
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_splits_equal_the_python_operator(data):
+    """Random 1-4 splits, children of earlier splits included: the same elements as
+    ``operators.split_tet`` on ``TetTopology``, the same refusals, and valid arrays."""
+    mesh = small()
+    arrays, topo = TetArrays(mesh, spare=8), TetTopology(mesh)
+    for _ in range(data.draw(st.integers(1, 12))):
+        t = data.draw(st.integers(0, topo.slot_count - 1))
+        raw = data.draw(st.lists(st.floats(0.0, 1.0), min_size=4, max_size=4).filter(lambda w: sum(w) > 1e-3))
+        w = np.array(raw) / sum(raw)
+        w[3] = 1.0 - w[:3].sum()
+        corners = set(topo.tet(t))
+        slot = next(s for s in arrays.live_tets().tolist() if set(arrays.tet_indices.numpy()[s]) == corners)
+        order = [arrays.tet_indices.numpy()[slot].tolist().index(v) for v in topo.tet(t)]
+        w_arrays = np.zeros(4)
+        w_arrays[order] = w  # the same point whatever the corner order of the two slots
+        refused = arrays.split_tets([slot], [w_arrays])[0]
+        try:
+            split_tet(topo, t, w)
+            assert refused is None
+        except TopologyError:
+            assert refused is not None
+        arrays.check(volume(mesh), 1e-12)
+        assert element_set(arrays.to_mesh()) == element_set(topo.to_mesh())
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_flips_equal_the_python_operator(data):
+    """Splits then 2-3 flips of random interior faces: the same elements as ``operators.flip23``
+    (quality drop included), the same refusals, parents that contain their elements'
+    centroids, and valid arrays after every flip."""
+    mesh = small()
+    arrays, topo = TetArrays(mesh, spare=8), TetTopology(mesh)
+    slots = data.draw(st.lists(st.integers(0, mesh.tet_count - 1), min_size=1, max_size=8, unique=True))
+    weights = np.full((len(slots), 4), 0.25)
+    assert arrays.split_tets(slots, weights) == [None] * len(slots)
+    for t in slots:
+        split_tet(topo, t, weights[0])
+    drop = data.draw(st.sampled_from([0.0, 0.5]))
+    for _ in range(data.draw(st.integers(1, 10))):
+        interior = sorted(key for key, owners in topo.face_tets.items() if len(owners) == 2)
+        key = data.draw(st.sampled_from(interior))
+        refused = arrays.flip_faces([slot_of_face(arrays, key)], quality_drop=drop)[0]
+        try:
+            flip23(topo, key, quality_drop=drop or None)
+            assert refused is None
+        except TopologyError:
+            assert refused is not None
+        arrays.check(volume(mesh), 1e-12)
+        assert element_set(arrays.to_mesh()) == element_set(topo.to_mesh())
+    rest = arrays.vertex_rest.numpy()
+    live = arrays.live_tets()
+    parents = arrays.tet_parent.numpy()[live]
+    centroids = rest[arrays.tet_indices.numpy()[live]].mean(axis=1)
+    for c, p in zip(centroids, parents):
+        corners = mesh.vertices[mesh.tets[p]]
+        bary = np.linalg.solve(np.vstack([corners.T, np.ones(4)]), np.append(c, 1.0))
+        assert bary.min() > -1e-9
+
+
+def test_flip_of_a_boundary_face_is_refused():
+    mesh = small()
+    arrays = TetArrays(mesh)
+    neighbors = arrays.tet_neighbors.numpy()
+    t, k = map(int, np.argwhere(neighbors < 0)[0])
+    assert "input" in arrays.flip_faces([(t, k)])[0]
+    arrays.check(volume(mesh))
+
+
+def test_flip_refused_when_the_new_edge_misses_the_face():
+    # two elements on face (0, 1, 2) whose apices' segment passes outside the face
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2.0, 2.0, 1.0], [2.0, 2.0, -1.0]], dtype=float)
+    mesh = TetMesh(vertices, np.array([[0, 1, 2, 3], [0, 2, 1, 4]]))
+    arrays = TetArrays(mesh)
+    t, k = slot_of_face(arrays, face_key(0, 1, 2))
+    assert "does not cross" in arrays.flip_faces([(t, k)])[0]
+    arrays.check(volume(mesh))
