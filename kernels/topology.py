@@ -37,14 +37,23 @@ REFUSED_QUALITY_DROP = wp.constant(5)  # flip 2-3: its worst element is poorer t
 
 
 @wp.func
-def tet_quality(p0: wp.vec3d, p1: wp.vec3d, p2: wp.vec3d, p3: wp.vec3d):
-    """Volume / longest edge^3 of tetrahedron p0 p1 p2 p3 (float64, signed), the measure of
-    ``wcut.topology.mesh.tet_quality``; NaN for four coincident corners."""
+def signed_volume(p0: wp.vec3d, p1: wp.vec3d, p2: wp.vec3d, p3: wp.vec3d):
+    """Signed volume (m^3) of p0 p1 p2 p3, as ``wcut.topology.mesh.signed_volume``."""
     a = p1 - p0
     b = p2 - p0
     c = p3 - p0
-    volume = (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
-              + a[2] * (b[0] * c[1] - b[1] * c[0])) / wp.float64(6.0)
+    return (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+            + a[2] * (b[0] * c[1] - b[1] * c[0])) / wp.float64(6.0)
+
+
+@wp.func
+def tet_quality(p0: wp.vec3d, p1: wp.vec3d, p2: wp.vec3d, p3: wp.vec3d):
+    """Volume / longest edge^3 of tetrahedron p0 p1 p2 p3 (float64, signed), the measure of
+    ``wcut.topology.mesh.tet_quality``; NaN for four coincident corners."""
+    volume = signed_volume(p0, p1, p2, p3)
+    a = p1 - p0
+    b = p2 - p0
+    c = p3 - p0
     d = p2 - p1
     e = p3 - p1
     f = p3 - p2
@@ -172,16 +181,6 @@ def sorted_face(tet_indices: wp.array(dtype=wp.vec4i), t0: int, k0: int):
     lo = wp.min(a, wp.min(b, c))
     hi = wp.max(a, wp.max(b, c))
     return wp.vec3i(lo, a + b + c - lo - hi, hi)
-
-
-@wp.func
-def signed_volume(p0: wp.vec3d, p1: wp.vec3d, p2: wp.vec3d, p3: wp.vec3d):
-    """Signed volume (m^3) of p0 p1 p2 p3, as ``wcut.topology.mesh.signed_volume``."""
-    a = p1 - p0
-    b = p2 - p0
-    c = p3 - p0
-    return (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
-            + a[2] * (b[0] * c[1] - b[1] * c[0])) / wp.float64(6.0)
 
 
 @wp.func
