@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import wcut
+from wcut.mesh import TetMesh
 
 #: A tiny scene: a 4x2x2 beam clamped at x = 0 (45 vertices, 80 tetrahedra).
 TINY_SCENE = """
@@ -119,3 +120,34 @@ class Pinhole:
             u = self.fx * p[:, 0] / z + self.cx
             v = self.fy * p[:, 1] / z + self.cy
         return np.stack([u, v], axis=1), z
+
+
+# ---- small meshes of the topology tests
+def single_tet() -> TetMesh:
+    """One tetrahedron."""
+    return TetMesh([[0, 0, 0], [1, 0, 0], [0.1, 0.9, 0], [0.2, 0.3, 1.1]], [[0, 1, 2, 3]], name="tet")
+
+
+def two_tets() -> TetMesh:
+    """Two tetrahedra on face (0, 1, 2), apices 3 above and 4 below (a convex bipyramid)."""
+    v = [[1, 0, 0], [-0.5, 0.8, 0], [-0.5, -0.8, 0.1], [0.1, 0, 1], [0, 0.1, -1]]
+    return TetMesh(v, [[0, 1, 2, 3], [0, 2, 1, 4]], name="pair")
+
+
+def ring(n: int) -> TetMesh:
+    """n tetrahedra around the interior edge (0, 1) along z, vertices 2.. a regular n-gon at z = 0."""
+    angles = 2 * np.pi * np.arange(n) / n + 0.1
+    v = [[0, 0, -1], [0, 0, 1]] + [[np.cos(a), np.sin(a), 0] for a in angles]
+    return TetMesh(v, [[0, 1, 2 + i, 2 + (i + 1) % n] for i in range(n)], name=f"ring({n})")
+
+
+def nonconvex_pair() -> TetMesh:
+    """Two tetrahedra on face (0, 1, 2) whose apices' segment misses that face."""
+    v = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 1], [2, 2, -0.3]]
+    return TetMesh(v, [[0, 1, 2, 3], [0, 2, 1, 4]], name="nonconvex")
+
+
+def pyramid(bend: float = 0.0) -> TetMesh:
+    """A square pyramid cut along base diagonal (0, 1); corner 3 raised by ``bend`` (0: coplanar base)."""
+    v = [[0, 0, 0], [1, 1, 0], [1, 0, 0], [0, 1, bend], [0.5, 0.5, 1]]
+    return TetMesh(v, [[0, 1, 4, 2], [0, 1, 4, 3]], name=f"pyramid({bend})")

@@ -78,9 +78,10 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     (snap,) = [m for m in methods if m["method"] == "snap"]
     assert snap["added_elements_per_cut_element"] == 0.0  # it only moves and duplicates vertices
 
-    # the compiled 1-4 splits and 2-3 flips against the Python ones, on the same plane
+    # the compiled 1-4 splits, 2-3 flips and general flips against the Python ones, on the same plane
     operators = written["topology_operators"]
     assert operators["name"] == "tiny_cut" and operators["splits"] == 100 and operators["flips"] > 50
+    assert operators["general_flips"] > 10
     assert operators["python_ms"] > 0 and operators["compiled_ms"] > 0
     assert abs(operators["speedup"] - operators["python_ms"] / operators["compiled_ms"]) <= 0.06 * operators["speedup"]
     assert "compiled ms" in out

@@ -14,6 +14,8 @@ from wcut.topology import (TetTopology, TopologyError, bisect_edge, check_topolo
                            split_tet, tet_qualities, tet_quality, unsew_face, vertex_fans)
 from wcut.topology.mesh import POSITION, REST, VELOCITY, signed_volume
 
+from conftest import nonconvex_pair, pyramid, ring, single_tet, two_tets
+
 # ---------------------------------------------------------------------------------------------
 # shared helpers
 
@@ -30,36 +32,6 @@ VEL_SHIFT = np.array([1.0, -2.0, 0.5])
 
 BEAM_SIZE = (1.0, 0.8, 0.6)
 FAST = dict(deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.too_slow])
-
-
-def single_tet() -> TetMesh:
-    """One tetrahedron."""
-    return TetMesh([[0, 0, 0], [1, 0, 0], [0.1, 0.9, 0], [0.2, 0.3, 1.1]], [[0, 1, 2, 3]], name="tet")
-
-
-def two_tets() -> TetMesh:
-    """Two tetrahedra on face (0, 1, 2), apices 3 above and 4 below (a convex bipyramid)."""
-    v = [[1, 0, 0], [-0.5, 0.8, 0], [-0.5, -0.8, 0.1], [0.1, 0, 1], [0, 0.1, -1]]
-    return TetMesh(v, [[0, 1, 2, 3], [0, 2, 1, 4]], name="pair")
-
-
-def ring(n: int) -> TetMesh:
-    """n tetrahedra around the interior edge (0, 1) along z, vertices 2.. a regular n-gon at z = 0."""
-    angles = 2 * np.pi * np.arange(n) / n + 0.1
-    v = [[0, 0, -1], [0, 0, 1]] + [[np.cos(a), np.sin(a), 0] for a in angles]
-    return TetMesh(v, [[0, 1, 2 + i, 2 + (i + 1) % n] for i in range(n)], name=f"ring({n})")
-
-
-def nonconvex_pair() -> TetMesh:
-    """Two tetrahedra on face (0, 1, 2) whose apices' segment misses that face."""
-    v = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 1], [2, 2, -0.3]]
-    return TetMesh(v, [[0, 1, 2, 3], [0, 2, 1, 4]], name="nonconvex")
-
-
-def pyramid(bend: float = 0.0) -> TetMesh:
-    """A square pyramid cut along base diagonal (0, 1); corner 3 raised by ``bend`` (0: coplanar base)."""
-    v = [[0, 0, 0], [1, 1, 0], [1, 0, 0], [0, 1, bend], [0.5, 0.5, 1]]
-    return TetMesh(v, [[0, 1, 4, 2], [0, 1, 4, 3]], name=f"pyramid({bend})")
 
 
 MESHES = {

@@ -12,6 +12,8 @@ from wcut.mesh import TetMesh, beam, tet_volumes
 from wcut.topology import TetTopology, TopologyError, face_key, flip23, split_tet
 from wcut.topology.arrays import TetArrays, face_neighbors
 
+from conftest import pyramid, ring, single_tet, two_tets
+
 
 def small() -> TetMesh:
     return beam(4, 2, 2, size=(0.4, 0.2, 0.2))
@@ -215,3 +217,145 @@ def test_flip_refused_when_the_new_edge_misses_the_face():
     t, k = slot_of_face(arrays, face_key(0, 1, 2))
     assert "does not cross" in arrays.flip_faces([(t, k)])[0]
     arrays.check(volume(mesh))
+
+
+def same_parents(arrays: TetArrays, topo: TetTopology) -> None:
+    """Every live element has the parent that ``topo``'s journal gives the element with the
+    same corners (both take the removed element that holds the centroid by the same
+    arithmetic, so that they agree on a centroid on a face two removed elements share)."""
+    slot_of = {frozenset(topo.tet(t)): t for t in topo.live_tets().tolist()}
+    tets, parents = arrays.tet_indices.numpy(), arrays.tet_parent.numpy()
+    for t in arrays.live_tets().tolist():
+        assert parents[t] == topo._journal.origin_of(slot_of[frozenset(tets[t])]), tets[t]
+
+
+def random_weights(data, count: int) -> np.ndarray:
+    raw = data.draw(st.lists(st.floats(0.0, 1.0), min_size=count, max_size=count).filter(lambda w: sum(w) > 1e-3))
+    w = np.array(raw) / sum(raw)
+    w[-1] = 1.0 - w[:-1].sum()
+    return w
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_every_operator_equals_the_python_one(data):
+    """Random sequences of all five operators (1-4 split, 2-3 flip, face split on the
+    boundary and inside, general flip of interior and boundary edges, bisection): the same
+    elements as the Python operators on ``TetTopology`` (the general flip's polygon started
+    where the compiled one starts it), the same refusals, valid arrays after every operator,
+    and the same parents."""
+    from wcut.topology import bisect_edge, remove_edge, split_face
+
+    mesh = small()
+    arrays, topo = TetArrays(mesh, spare=8), TetTopology(mesh)
+    topo.begin_change()
+    for _ in range(data.draw(st.integers(1, 14))):
+        kind = data.draw(st.sampled_from(["split_tet", "flip", "split_face", "remove_edge", "bisect"]))
+        if kind == "split_tet":
+            t = data.draw(st.sampled_from(topo.live_tets().tolist()))
+            w = random_weights(data, 4)
+            slot = next(s for s in arrays.live_tets().tolist() if set(arrays.tet_indices.numpy()[s]) == set(topo.tet(t)))
+            order = [arrays.tet_indices.numpy()[slot].tolist().index(v) for v in topo.tet(t)]
+            w_arrays = np.zeros(4)
+            w_arrays[order] = w
+            refused = arrays.split_tets([slot], [w_arrays])[0]
+            python = lambda: split_tet(topo, t, w)  # noqa: E731
+        elif kind in ("flip", "split_face"):
+            keys = sorted(topo.face_tets)
+            key = data.draw(st.sampled_from(keys))
+            if kind == "flip":
+                if len(topo.face_tets[key]) != 2:
+                    continue
+                refused = arrays.flip_faces([slot_of_face(arrays, key)], quality_drop=0.1)[0]
+                python = lambda: flip23(topo, key, quality_drop=0.1)  # noqa: E731
+            else:
+                w = random_weights(data, 3)
+                refused = arrays.split_faces([key], [w])[0]
+                python = lambda: split_face(topo, key, w)  # noqa: E731
+        else:
+            edges = sorted({tuple(sorted((tet[i], tet[j]))) for t in topo.live_tets().tolist()
+                            for tet in [topo.tet(t)] for i in range(4) for j in range(i + 1, 4)})
+            a, b = data.draw(st.sampled_from(edges))
+            if kind == "remove_edge":
+                refused = arrays.remove_edges([(a, b)])[0]
+                python = lambda: remove_edge(topo, a, b, canonical=True)  # noqa: E731
+            else:
+                s = data.draw(st.floats(0.05, 0.95))
+                refused = arrays.bisect_edges([(a, b)], [s])[0]
+                python = lambda: bisect_edge(topo, a, b, s)  # noqa: E731
+        try:
+            python()
+            assert refused is None, (kind, refused)
+        except TopologyError as exc:
+            assert refused is not None, (kind, str(exc))
+        arrays.check(volume(mesh), 1e-12)
+        assert element_set(arrays.to_mesh()) == element_set(topo.to_mesh()), kind
+    same_parents(arrays, topo)
+
+
+def unchanged_after(arrays: TetArrays, operator, *args) -> str:
+    """Run a refused operator; assert it changed nothing; return why it was refused."""
+    before = {name: getattr(arrays, name).numpy().copy() for name in TetArrays._TYPES}
+    counts = arrays.counts.numpy().copy()
+    reason = operator(*args)[0]
+    assert reason is not None
+    np.testing.assert_array_equal(arrays.counts.numpy(), counts)
+    for name, value in before.items():
+        np.testing.assert_array_equal(getattr(arrays, name).numpy(), value, err_msg=name)
+    return reason
+
+
+@pytest.mark.parametrize("n", [3, 4, 5, 6, 7])
+def test_general_flip_of_a_ring_gives_2n_minus_4_elements(n):
+    mesh = ring(n)
+    arrays = TetArrays(mesh)
+    assert arrays.remove_edges([(0, 1)]) == [None]
+    assert len(arrays.live_tets()) == 2 * (n - 2)
+    tets = arrays.tet_indices.numpy()[arrays.live_tets()]
+    assert not any({0, 1} <= set(tet) for tet in tets.tolist())  # the edge is gone
+    arrays.check(volume(mesh), 1e-12)
+
+
+def test_general_flip_of_a_boundary_edge_keeps_a_flat_boundary_and_refuses_a_bent_one():
+    flat = TetArrays(pyramid(0.0))
+    assert flat.remove_edges([(0, 1)]) == [None]
+    flat.check(volume(pyramid(0.0)), 1e-12)
+    bent = TetArrays(pyramid(0.3))
+    assert "change the volume" in unchanged_after(bent, bent.remove_edges, [(0, 1)])
+
+
+@pytest.mark.parametrize("factory, operator, args, reason", [
+    (single_tet, "remove_edges", ([(0, 1)],), "inverted or flat"),  # two vertices around it
+    (two_tets, "remove_edges", ([(3, 4)],), "no such"),
+    (two_tets, "bisect_edges", ([(3, 4)], [0.5]), "no such"),
+    (two_tets, "bisect_edges", ([(0, 1)], [1.0]), "input"),
+    (two_tets, "bisect_edges", ([(0, 1)], [np.nan]), "input"),
+    (two_tets, "split_faces", ([(0, 3, 4)], [[0.2, 0.3, 0.5]]), "no such"),
+    (two_tets, "split_faces", ([(0, 1, 2)], [[0.5, 0.5, 0.0]]), "inverted or flat"),
+    (two_tets, "split_faces", ([(0, 1, 2)], [[0.5, 0.5, 0.5]]), "input"),
+])
+def test_refused_operators_change_nothing(factory, operator, args, reason):
+    arrays = TetArrays(factory())
+    assert reason in unchanged_after(arrays, getattr(arrays, operator), *args)
+
+
+def test_face_splits_and_bisections_add_one_vertex_each():
+    mesh = two_tets()
+    arrays = TetArrays(mesh)
+    assert arrays.split_faces([(0, 1, 2), (0, 1, 3)], [[0.2, 0.3, 0.5], [0.3, 0.3, 0.4]]) == [None, None]
+    assert len(arrays.live_tets()) == 2 + 4 + 2  # 2-6 inside, then 1-3 of a boundary face
+    assert arrays.bisect_edges([(3, 4)], [0.5]) == ["no such face or edge (or too many elements around it)"]
+    assert arrays.bisect_edges([(0, 5)], [0.25]) == [None]  # an edge to the first new vertex
+    assert arrays.vertex_count == mesh.vertex_count + 3
+    v = mesh.vertex_count + 2
+    assert arrays.vertex_parents.numpy()[v].tolist() == [0, 5, -1, -1]
+    np.testing.assert_array_equal(arrays.vertex_weights.numpy()[v], [0.75, 0.25, 0.0, 0.0])
+    arrays.check(volume(mesh), 1e-12)
+
+
+def test_operators_grow_the_arrays_when_full():
+    mesh = ring(6)
+    arrays = TetArrays(mesh, spare=1)
+    assert arrays.bisect_edges([(0, 1)], [0.5]) == [None]
+    assert len(arrays.live_tets()) == 12
+    arrays.check(volume(mesh), 1e-12)

@@ -313,22 +313,26 @@ def bench_cut_event(name: str, cells, size, *, repeats: int = 7) -> dict:
 
 
 def bench_topology_operators(name: str, cells, size, *, repeats: int = 5) -> dict:
-    """The 1-4 splits of the elements the cut-event plane crosses (at their centroids), then
-    the 2-3 flips of the faces two of them share, in order, by the Python operators on
-    ``TetTopology`` and by the compiled ones on ``TetArrays`` (one launch per batch; the
-    faces' slots found between the two launches are not timed). The first run compiles."""
-    from .topology import TetTopology, TopologyError, face_key, flip23, split_tet
+    """The 1-4 splits of the elements the cut-event plane crosses (at their centroids), the
+    2-3 flips of the faces two of them share, then the general flips of the edges the plane
+    crosses, in order, by the Python operators on ``TetTopology`` and by the compiled ones on
+    ``TetArrays`` (one launch per batch; the faces' slots found between the launches are not
+    timed). The first run compiles."""
+    from .topology import TetTopology, TopologyError, face_key, flip23, remove_edge, split_tet
     from .topology.arrays import TetArrays
 
     mesh, _, _, plane = _cut_setup(cells, size)
-    side = plane.signed_distance(mesh.vertices)[mesh.tets]
-    crossed = np.flatnonzero((side.min(axis=1) < 0) & (side.max(axis=1) > 0))
+    side = plane.signed_distance(mesh.vertices)
+    crossed = np.flatnonzero((side[mesh.tets].min(axis=1) < 0) & (side[mesh.tets].max(axis=1) > 0))
     owners: dict = {}
+    edges = set()
     for t in crossed.tolist():
         tet = mesh.tets[t].tolist()
         for k in range(4):
             owners.setdefault(face_key(*(tet[:k] + tet[k + 1:])), []).append(t)
+        edges |= {(min(a, b), max(a, b)) for i, a in enumerate(tet) for b in tet[i + 1:] if side[a] * side[b] < 0}
     keys = sorted(key for key, around in owners.items() if len(around) == 2)
+    edges = sorted(edges)
     weights = np.full((len(crossed), 4), 0.25)
     python_s, compiled_s = [], []
     for _ in range(repeats + 1):
@@ -336,13 +340,14 @@ def bench_topology_operators(name: str, cells, size, *, repeats: int = 5) -> dic
         start = time.perf_counter()
         for t in crossed.tolist():
             split_tet(topo, t, weights[0])
-        flips = 0
-        for key in keys:
-            try:
-                flip23(topo, key)
-                flips += 1
-            except TopologyError:
-                pass
+        counts = [0, 0]
+        for i, (operator, items) in enumerate(((flip23, keys), (remove_edge, edges))):
+            for item in items:
+                try:
+                    operator(topo, *(item if operator is remove_edge else (item,)))
+                    counts[i] += 1
+                except TopologyError:
+                    pass
         python_s.append(time.perf_counter() - start)
         arrays = TetArrays(mesh, device="cpu")
         start = time.perf_counter()
@@ -356,13 +361,13 @@ def bench_topology_operators(name: str, cells, size, *, repeats: int = 5) -> dic
                 slot_of[face_key(*(tet[:k] + tet[k + 1:]))] = (t, k)
         faces = [slot_of[key] for key in keys]
         resumed = time.perf_counter()
-        compiled_flips = arrays.flip_faces(faces).count(None)
+        compiled = [arrays.flip_faces(faces).count(None), arrays.remove_edges(edges).count(None)]
         compiled_s.append(time.perf_counter() - resumed + middle - start)
-    if compiled_flips != flips:
-        raise WcutError(f"topology operators bench: {flips} Python flips, {compiled_flips} compiled")
+    if compiled != counts:
+        raise WcutError(f"topology operators bench: {counts} Python flips, {compiled} compiled")
     python_ms, compiled_ms = statistics.median(python_s[1:]) * 1e3, statistics.median(compiled_s[1:]) * 1e3
-    return {"name": name, "tets": mesh.tet_count, "splits": len(crossed), "flips": flips,
-            "python_ms": round(python_ms, 3), "compiled_ms": round(compiled_ms, 3),
+    return {"name": name, "tets": mesh.tet_count, "splits": len(crossed), "flips": counts[0],
+            "general_flips": counts[1], "python_ms": round(python_ms, 3), "compiled_ms": round(compiled_ms, 3),
             "speedup": round(python_ms / compiled_ms, 1)}
 
 
@@ -438,7 +443,8 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
                                             ("added_elements_per_cut_element", "elements/cut el"),
                                             ("components", "pieces")])
         _print_rows([result["topology_operators"]], [("name", "operators"), ("splits", "1-4 splits"),
-                                                     ("flips", "2-3 flips"), ("python_ms", "python ms"),
+                                                     ("flips", "2-3 flips"),
+                                                     ("general_flips", "general flips"), ("python_ms", "python ms"),
                                                      ("compiled_ms", "compiled ms"), ("speedup", "speedup")])
     if quadratic:
         _print_rows(quadratic, [("name", "quadratic"), ("tets", "tets"), ("nodes", "nodes"), ("step_ms", "step ms"),

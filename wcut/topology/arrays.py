@@ -3,11 +3,11 @@
 :class:`TetArrays` is the array form of :class:`~wcut.topology.mesh.TetTopology` that the
 compiled operators of ``wcut.kernels.topology`` edit: a batch of operators is one Warp
 launch, run in order by one thread, where ``TetTopology`` pays some 70 us of Python per
-operator (see that module). It holds the 1-4 split and the 2-3 flip so far; the cutter still
-runs on ``TetTopology``.
+operator (see that module). It holds the 1-4 split, the face split (1-3, 2-6), the 2-3 flip,
+the general flip and the bisection; the cutter still runs on ``TetTopology``.
 
-Element slots only grow during a change (a split keeps its element's slot for one child, a
-flip its two, new ones are appended), so a slot's index is stable while it lives and the cost
+Element slots only grow during a change (an operator's new elements take the slots of the
+elements they replace, then new ones are appended), so a slot's index is stable while it lives and the cost
 of a batch follows the elements it touches; :meth:`to_mesh` drops the dead slots.
 """
 
@@ -23,8 +23,15 @@ from .mesh import TopologyError
 #: why an operator was refused, by status code (``wcut.kernels.topology``)
 REFUSALS = {1: "a new element would be inverted or flat", 2: "no room left in the arrays",
             3: "not an operator's input (a dead element, a boundary face, bad weights)",
-            4: "the new edge does not cross the face", 5: "its worst element would be too poor"}
-_FULL = 2
+            4: "the new edge does not cross the face", 5: "its worst element would be too poor",
+            6: "it would change the volume (the edge's boundary faces are not coplanar)",
+            7: "no such face or edge (or too many elements around it)", 10: "no split point"}
+#: status codes on which a batch stops: the arrays are full, a split point is needed
+_FULL, _NEEDS_POINT = 2, 8
+
+#: operator names of :meth:`TetArrays.run`, and their kind in ``kernels.topology``
+OPERATORS = {"split_tet": 0, "flip_face": 1, "split_face": 2, "remove_edge": 3, "bisect_edge": 4,
+             "flip_or_split_face": 5, "remove_or_bisect_edge": 6}
 
 
 def face_neighbors(tets: np.ndarray) -> np.ndarray:
@@ -66,24 +73,39 @@ class TetArrays:
     """
 
     def __init__(self, mesh: TetMesh, positions=None, velocities=None, *, spare: int = 1024, device=None):
-        self.device = wp.get_device(device)
-        n, m = mesh.vertex_count, mesh.tet_count
+        n = mesh.vertex_count
         rest = np.asarray(mesh.vertices, dtype=np.float64)
         q = rest if positions is None else np.asarray(positions, dtype=np.float64).reshape(n, 3)
         qd = np.zeros((n, 3)) if velocities is None else np.asarray(velocities, dtype=np.float64).reshape(n, 3)
+        self._setup(mesh.tets, face_neighbors(mesh.tets), np.arange(mesh.tet_count), rest, q, qd, spare, device)
+
+    @classmethod
+    def from_arrays(cls, tets, neighbors, parents, rest, q, qd, *, spare: int = 1024, device=None) -> "TetArrays":
+        """Arrays of elements ``tets`` (M, 4) with face ``neighbors`` (M, 4), ``parents`` (M,)
+        and vertex rest positions, positions and velocities (N, 3), taken as they are."""
+        arrays = cls.__new__(cls)
+        arrays._setup(tets, neighbors, parents, rest, q, qd, spare, device)
+        return arrays
+
+    def _setup(self, tets, neighbors, parents, rest, q, qd, spare: int, device) -> None:
+        self.device = wp.get_device(device)
+        n, m = len(rest), len(tets)
         host = {
-            "tet_indices": np.asarray(mesh.tets, dtype=np.int32), "tet_neighbors": face_neighbors(mesh.tets),
-            "tet_alive": np.ones(m, dtype=np.int32), "tet_parent": np.arange(m, dtype=np.int32),
-            "vertex_rest": rest, "vertex_q": q, "vertex_qd": qd,
+            "tet_indices": np.asarray(tets, dtype=np.int32), "tet_neighbors": np.asarray(neighbors, dtype=np.int32),
+            "tet_alive": np.ones(m, dtype=np.int32), "tet_parent": np.asarray(parents, dtype=np.int32),
+            "vertex_rest": np.asarray(rest, dtype=np.float64), "vertex_q": np.asarray(q, dtype=np.float64),
+            "vertex_qd": np.asarray(qd, dtype=np.float64),
             "vertex_parents": np.full((n, 4), -1, dtype=np.int32), "vertex_weights": np.zeros((n, 4)),
+            "vertex_tet": np.full(n, -1, dtype=np.int32), "vertex_origin": np.full(n, -1, dtype=np.int32),
         }
+        host["vertex_tet"][np.asarray(tets).reshape(-1)] = np.repeat(np.arange(m, dtype=np.int32), 4)
         self.counts = wp.array([n, m], dtype=wp.int32, device=self.device)
         self._allocate(host, n + spare, m + spare)
 
     _TYPES = {"tet_indices": wp.vec4i, "tet_neighbors": wp.vec4i, "tet_alive": wp.int32, "tet_parent": wp.int32,
               "vertex_rest": wp.vec3d, "vertex_q": wp.vec3d, "vertex_qd": wp.vec3d, "vertex_parents": wp.vec4i,
-              "vertex_weights": wp.vec4d}
-    _FILL = {"tet_neighbors": -1, "vertex_parents": -1}
+              "vertex_weights": wp.vec4d, "vertex_tet": wp.int32, "vertex_origin": wp.int32}
+    _FILL = {"tet_neighbors": -1, "vertex_parents": -1, "vertex_tet": -1, "vertex_origin": -1}
 
     def _allocate(self, host: dict, vertex_capacity: int, tet_capacity: int) -> None:
         """(Re)create the arrays with these capacities, filled with ``host`` (name: numpy data)."""
@@ -93,6 +115,7 @@ class TetArrays:
             full = np.full((capacity,) + data.shape[1:], self._FILL.get(name, 0), dtype=data.dtype)
             full[: len(data)] = data
             setattr(self, name, wp.array(full, dtype=dtype, device=self.device))
+        self._view = None
 
     def _grow(self) -> None:
         """Double both capacities, keeping the content."""
@@ -124,7 +147,8 @@ class TetArrays:
     def check(self, volume: float | None = None, volume_tolerance: float = 1e-9) -> None:
         """Raise :class:`TopologyError` unless every live element is well shaped and positively
         oriented, the neighbours equal those computed from scratch (which also checks that no
-        face is in more than two elements and that neighbours are mutual), and, when
+        face is in more than two elements and that neighbours are mutual), every vertex's
+        ``vertex_tet`` is a live element of it, and, when
         ``volume`` is given, the total rest volume equals it (relative ``volume_tolerance``)."""
         from .operators import tet_qualities
 
@@ -141,6 +165,14 @@ class TetArrays:
             t = int(live[np.flatnonzero(np.any(actual != expected, axis=1))[0]])
             raise TopologyError(f"element {t}: neighbours {self.tet_neighbors.numpy()[t].tolist()}, "
                                 f"from scratch {expected[np.searchsorted(live, t)].tolist()}")
+        used = np.unique(tets)
+        at = self.vertex_tet.numpy()[used]
+        held = (at >= 0) & (at < self.slot_count)
+        held[held] = (self.tet_alive.numpy()[at[held]] != 0) & (self.tet_indices.numpy()[at[held]]
+                                                                 == used[held, None]).any(axis=1)
+        if not held.all():
+            v = int(used[np.argmin(held)])
+            raise TopologyError(f"vertex {v}: vertex_tet {int(self.vertex_tet.numpy()[v])} is not a live element of it")
         if volume is not None:
             total = float(tet_volumes(rest, tets).sum())
             if abs(total - volume) > volume_tolerance * abs(volume):
@@ -151,51 +183,105 @@ class TetArrays:
         """1-4 splits of elements ``slots`` (K,) at barycentric ``weights`` (K, 4), in order
         (a later one may split a child of an earlier one). Returns per split None when done,
         else why it was refused (the mesh is then as before that split)."""
-        from ..kernels import topology as k
-
         slots = np.asarray(slots, dtype=np.int32).reshape(-1)
         weights = np.asarray(weights, dtype=np.float64).reshape(-1, 4)
         if len(weights) != len(slots):
             raise WcutError(f"split_tets: {len(slots)} elements and {len(weights)} weights")
-
-        def launch(first: int, status: wp.array) -> None:
-            wp.launch(k.split_tets, 1, device=self.device,
-                      inputs=[wp.array(slots[first:], dtype=wp.int32, device=self.device),
-                              wp.array(weights[first:], dtype=wp.vec4d, device=self.device),
-                              wp.float64(DEGENERATE_TOL), self.tet_indices, self.tet_neighbors, self.tet_alive,
-                              self.tet_parent, self.vertex_rest, self.vertex_q, self.vertex_qd, self.vertex_parents,
-                              self.vertex_weights, self.counts], outputs=[status])
-
-        return self._run(len(slots), launch)
+        return self.run("split_tet", _ints(slots[:, None]), weights)
 
     def flip_faces(self, faces, quality_drop: float = 0.0) -> list[str | None]:
         """2-3 flips of the faces ``(element, corner opposite the face)`` (K, 2), in order; with
         ``quality_drop`` > 0 a flip whose worst element's quality falls below that fraction of
         the worse of the two it replaces is refused. Returns as :meth:`split_tets`."""
+        return self.run("flip_face", _ints(np.asarray(faces).reshape(-1, 2)), quality_drop=quality_drop)
+
+    def split_faces(self, faces, weights) -> list[str | None]:
+        """Splits of the faces given by their vertices (K, 3) at barycentric ``weights`` over
+        them (K, 3): 1-3 on the boundary, 2-6 inside. Returns as :meth:`split_tets`."""
+        faces = np.asarray(faces).reshape(-1, 3)
+        weights = np.asarray(weights, dtype=np.float64).reshape(-1, 3)
+        if len(weights) != len(faces):
+            raise WcutError(f"split_faces: {len(faces)} faces and {len(weights)} weights")
+        return self.run("split_face", _ints(faces), np.pad(weights, ((0, 0), (0, 1))))
+
+    def remove_edges(self, edges, volume_tolerance: float = 1e-12) -> list[str | None]:
+        """General flips of the edges given by their vertices (K, 2); that of a boundary edge is
+        refused when it changes the volume by more than ``volume_tolerance`` (relative).
+        Returns as :meth:`split_tets`."""
+        return self.run("remove_edge", _ints(np.asarray(edges).reshape(-1, 2)), volume_tolerance=volume_tolerance)
+
+    def bisect_edges(self, edges, s) -> list[str | None]:
+        """Bisections of the edges (K, 2) at ``(1 - s) a + s b`` (K,). Returns as :meth:`split_tets`."""
+        edges = np.asarray(edges).reshape(-1, 2)
+        s = np.asarray(s, dtype=np.float64).reshape(-1)
+        if len(s) != len(edges):
+            raise WcutError(f"bisect_edges: {len(edges)} edges and {len(s)} parameters")
+        return self.run("bisect_edge", _ints(edges), np.pad(s[:, None], ((0, 0), (0, 3))))
+
+    def run(self, kinds, ints: np.ndarray, reals: np.ndarray | None = None, *, quality_drop: float = 0.0,
+            volume_tolerance: float = 1e-12, resolve=None, details: bool = False) -> list:
+        """Operators ``kinds`` (a name of :data:`OPERATORS`, or one per operator) on ``ints``
+        (K, 4) and ``reals`` (K, 4) as ``kernels.topology.run_operators`` reads them, in
+        order, in one launch (more when the arrays must grow, or when ``resolve(i)`` must
+        give operator i's ``(ints, reals)`` row: a face split point not known before).
+        Returns per operator None when done, else why it was refused; with ``details``
+        (reason, vertex made or -1, whether the fallback operator ran)."""
         from ..kernels import topology as k
 
-        faces = np.asarray(faces, dtype=np.int32).reshape(-1, 2)
-
-        def launch(first: int, status: wp.array) -> None:
-            wp.launch(k.flip_faces, 1, device=self.device,
-                      inputs=[wp.array(faces[first:], dtype=wp.vec2i, device=self.device), wp.float64(DEGENERATE_TOL),
-                              wp.float64(quality_drop), self.tet_indices, self.tet_neighbors, self.tet_alive,
-                              self.tet_parent, self.vertex_rest, self.counts], outputs=[status])
-
-        return self._run(len(faces), launch)
-
-    def _run(self, count: int, launch) -> list[str | None]:
-        """Launch a batch of ``count`` operators from the first not yet done, growing the
-        arrays whenever the batch ran out of room; the reasons of the refusals."""
+        count = len(ints)
+        names = [kinds] if isinstance(kinds, str) else kinds
+        kinds = np.broadcast_to(np.asarray([OPERATORS[n] for n in names], dtype=np.int32), (count,))
+        ints = np.array(ints, dtype=np.int32).reshape(-1, 4)
+        reals = np.zeros((count, 4)) if reals is None else np.array(reals, dtype=np.float64).reshape(-1, 4)
         codes = np.zeros(count, dtype=np.int32)
+        results = np.full((count, 2), -1, dtype=np.int32)
         first = 0
         while first < count:
             status = wp.zeros(count - first, dtype=wp.int32, device=self.device)
-            launch(first, status)
+            made = wp.zeros(count - first, dtype=wp.vec2i, device=self.device)
+            inputs = [wp.array(a[first:], dtype=t, device=self.device)
+                      for a, t in ((kinds, wp.int32), (ints, wp.vec4i), (reals, wp.vec4d))]
+            wp.launch(k.run_operators, 1, device=self.device,
+                      inputs=[self.view(), *inputs, wp.float64(DEGENERATE_TOL), wp.float64(quality_drop),
+                              wp.float64(volume_tolerance)], outputs=[status, made])
             codes[first:] = status.numpy()
-            full = np.flatnonzero(codes[first:] == _FULL)
-            if not len(full):
+            results[first:] = made.numpy()
+            stops = np.flatnonzero((codes[first:] == _FULL) | (codes[first:] == _NEEDS_POINT))
+            if not len(stops):
                 break
-            first += int(full[0])
-            self._grow()
-        return [None if c == 0 else REFUSALS[int(c)] for c in codes.tolist()]
+            first += int(stops[0])
+            if codes[first] == _FULL:
+                self._grow()
+            else:
+                ints[first], reals[first] = resolve(first)
+        reasons = [None if c == 0 else REFUSALS[int(c)] for c in codes.tolist()]
+        if not details:
+            return reasons
+        return [(r, int(v), bool(f == 1)) for r, (v, f) in zip(reasons, results.tolist())]
+
+    def view(self):
+        """The arrays as the ``kernels.topology.TetMeshArrays`` struct the kernels take."""
+        from ..kernels import topology as k
+
+        if self._view is None:
+            view = k.TetMeshArrays()
+            for name in self._TYPES:
+                setattr(view, name, getattr(self, name))
+            view.counts = self.counts
+            scratch = {"removed": (wp.int32, k.MAX_RING), "added": (wp.vec4i, k.MAX_ADDED),
+                       "added_parent": (wp.int32, k.MAX_ADDED), "outer_face": (wp.vec3i, 4 * k.MAX_RING),
+                       "outer_tet": (wp.int32, 4 * k.MAX_RING), "star": (wp.int32, k.MAX_STAR),
+                       "polygon": (wp.int32, k.POLYGON), "best": (wp.float64, k.POLYGON**2),
+                       "apex": (wp.int32, k.POLYGON**2)}
+            for name, (dtype, size) in scratch.items():
+                setattr(view, name, wp.zeros(size, dtype=dtype, device=self.device))
+            self._view = view
+        return self._view
+
+
+def _ints(columns: np.ndarray) -> np.ndarray:
+    """(K, c) integers padded with -1 to the (K, 4) int32 rows of ``run_operators``."""
+    columns = np.asarray(columns, dtype=np.int64)
+    out = np.full((len(columns), 4), -1, dtype=np.int32)
+    out[:, : columns.shape[1]] = columns
+    return out

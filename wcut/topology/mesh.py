@@ -248,7 +248,7 @@ class TetTopology:
         """Elements containing edge (a, b)."""
         return self.vertex_tets[a] & self.vertex_tets[b]
 
-    def edge_ring(self, a: int, b: int) -> tuple[list[int], list[int], bool]:
+    def edge_ring(self, a: int, b: int, canonical: bool = False) -> tuple[list[int], list[int], bool]:
         """The ordered ring of elements around edge (a, b) (thesis figure 5.1).
 
         Returns ``(tets, polygon, closed)``: element ``tets[i]`` is ``(a, b, polygon[i],
@@ -256,6 +256,8 @@ class TetTopology:
         polygon[i+1]) > 0``. For an interior edge the ring is closed (``polygon`` has one vertex
         per element, indices taken cyclically); for a boundary edge it is open and ``polygon``
         has one more vertex than there are elements. Unsewn faces count as boundary.
+        ``canonical``: a closed ring starts at its smallest polygon vertex, whatever the
+        numbering of the elements (as the compiled operators walk it).
         """
         around = self.edge_tets(a, b)
         if not around:
@@ -308,6 +310,9 @@ class TetTopology:
             polygon.reverse()
             if closed:  # keep polygon[i], polygon[i+1] the corners of ring[i]
                 polygon = polygon[-1:] + polygon[:-1]
+        if closed and canonical:
+            r = polygon.index(min(polygon))
+            ring, polygon = ring[r:] + ring[:r], polygon[r:] + polygon[:r]
         return ring, polygon, closed
 
     def is_boundary_edge(self, a: int, b: int) -> bool:
@@ -480,8 +485,14 @@ class TetTopology:
 
     def interpolate(self, parents: list[int], weights) -> np.ndarray:
         """The barycentric combination of the attributes (a ``vertex_data`` row: rest
-        position, position, velocity) of ``parents`` with ``weights``."""
-        return np.asarray(weights, dtype=np.float64) @ self.vertex_data.take(parents, axis=0)  # take: a fast gather
+        position, position, velocity) of ``parents`` with ``weights``, summed in order (as
+        the compiled operators sum it, where a matrix product may pair the terms otherwise)."""
+        rows = self.vertex_data.take(parents, axis=0)  # take: a fast gather
+        weights = np.asarray(weights, dtype=np.float64).tolist()
+        data = weights[0] * rows[0]
+        for w, row in zip(weights[1:], rows[1:]):
+            data += w * row
+        return data
 
     def add_vertex(self, parents: list[int], weights, origin_tet: int = -1, data: np.ndarray | None = None) -> int:
         """A new vertex at the barycentric combination of ``parents`` with ``weights`` (all

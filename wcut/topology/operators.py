@@ -339,7 +339,7 @@ def bisect_edge(topo: TetTopology, a: int, b: int, s: float) -> tuple[int, list[
 
 
 def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool = False,
-                volume_tolerance: float = 1e-12) -> list[int]:
+                volume_tolerance: float = 1e-12, canonical: bool = False) -> list[int]:
     """General flip, or edge removal (thesis figure 5.3): the n elements around edge (a, b)
     become 2(n - 2) elements (a, tau) and (b, tau) over a triangulation tau of the polygon of
     their other vertices (closed for an interior edge; closed by one more edge for a
@@ -348,9 +348,11 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     The triangulation maximises the worst element quality (dynamic programming over the
     polygon, as in Shewchuk's edge removal). A boundary edge's flip changes the volume unless
     its two boundary faces are coplanar: it is refused when the relative change exceeds
-    ``volume_tolerance`` unless ``allow_volume_change``. Returns the new elements.
+    ``volume_tolerance`` unless ``allow_volume_change``. Between equally good triangulations
+    the choice depends on where the polygon starts: ``canonical`` starts it as the compiled
+    operator does (``TetTopology.edge_ring``). Returns the new elements.
     """
-    ring, polygon, closed = topo.edge_ring(a, b)
+    ring, polygon, closed = topo.edge_ring(a, b, canonical)
     rest = topo.rest_tuples
     m = len(polygon)
     if m < 3:
@@ -377,13 +379,15 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
         hints.append(k - 1)  # ring[k - 1] and ring[k] hold polygon[k]: the centroid is near
         stack += [(i, k)] * (k > i + 1) + [(k, j)] * (j > k + 1)
     added = [[u, v, w, b] for u, v, w in triangles] + [[u, w, v, a] for u, v, w in triangles]
+    qualities: list[float] = []
+    _check(topo, added, f"general flip of edge ({a}, {b})", None, qualities)  # float32 too
     if not closed:
         before = sum(topo.rest_volume(t) for t in ring)
         after = sum(signed_volume(*[rest[v] for v in t]) for t in added)
         if abs(after - before) > volume_tolerance * before and not allow_volume_change:
             raise TopologyError(f"general flip of boundary edge ({a}, {b}) would change the volume by "
                                 f"{(after - before) / before:.1e} (its boundary faces are not coplanar)")
-    return topo.replace_tets(ring, added, _containing(topo, ring, added, hints + hints))
+    return topo.replace_tets(ring, added, _containing(topo, ring, added, hints + hints), qualities)
 
 
 def _polygon_qualities(corners: list, rest_a, rest_b) -> list:
