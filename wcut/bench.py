@@ -283,13 +283,19 @@ def _cut_setup(cells, size):
 def bench_cut_event(name: str, cells, size, *, repeats: int = 7) -> dict:
     """Time a cut event: ``Cutter.cut`` (paulus, epsilon 0.1) of a plane crossing about 100
     elements, ``TetTopology.to_mesh`` and ``Model.rebuild`` (new flat arrays, state carried
-    over). Each repetition cuts a fresh copy of the mesh; building it is not timed."""
+    over). Each repetition cuts a fresh copy of the mesh; building it is not timed. Beside
+    it, the same cut by the Python operators (``compiled=False``), in the same repetitions."""
     from .cut import Cutter
     from .topology import TetTopology
 
     mesh, model, state, plane = _cut_setup(cells, size)
-    cut_s, rebuild_s, event_s = [], [], []
+    cut_s, rebuild_s, event_s, python_s = [], [], [], []
     for _ in range(repeats + 1):  # the first one warms up
+        topology = TetTopology(mesh, state.particle_q.numpy(), state.particle_qd.numpy())
+        cutter = Cutter(topology, method="paulus", epsilon=0.1, compiled=False)
+        start = time.perf_counter()
+        cutter.cut(plane)
+        python_s.append(time.perf_counter() - start)
         topology = TetTopology(mesh, state.particle_q.numpy(), state.particle_qd.numpy())
         cutter = Cutter(topology, method="paulus", epsilon=0.1)
         start = time.perf_counter()
@@ -309,6 +315,7 @@ def bench_cut_event(name: str, cells, size, *, repeats: int = 7) -> dict:
         "event_ms": round(statistics.median(event_s[1:]) * 1e3, 2),
         "cut_ms": round(statistics.median(cut_s[1:]) * 1e3, 2),
         "rebuild_ms": round(statistics.median(rebuild_s[1:]) * 1e3, 2),
+        "python_cut_ms": round(statistics.median(python_s[1:]) * 1e3, 2),
     }
 
 
@@ -436,7 +443,8 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
         _print_table(records)
     if cut_scenes:
         _print_rows(cut_events, [("name", "cut event"), ("tets", "tets"), ("cut_elements", "cut el"),
-                                 ("event_ms", "event ms"), ("cut_ms", "cut ms"), ("rebuild_ms", "rebuild ms")])
+                                 ("event_ms", "event ms"), ("cut_ms", "cut ms"), ("rebuild_ms", "rebuild ms"),
+                                 ("python_cut_ms", "python cut ms")])
         print(f"largest / smallest mesh: {result['cut_event_size_ratio']}x")
         _print_rows(result["cut_methods"], [("method", "method"), ("epsilon", "eps"), ("cut_elements", "cut el"),
                                             ("added_nodes_per_cut_element", "nodes/cut el"),

@@ -41,6 +41,7 @@ from ..mesh import TET_FACES
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
                         flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, tet_qualities,
                         unsew_face)
+from ..topology.region import TetRegion
 from .surface import CutSurface, Plane, TriangleSurface
 
 METHODS = ("paulus", "bielser", "snap", "delete")
@@ -117,6 +118,31 @@ class CutResult:
     stats: CutStats
 
 
+@dataclass
+class _Plan:
+    """Steps 3-5 of a paulus cut (:meth:`Cutter._plan`), in the order they are applied."""
+
+    #: elements to split 1-4: (slot, barycentric weights of the split vertex, whether it is on the cut)
+    splits: list = field(default_factory=list)
+    #: split vertices of earlier cuts that serve again (on the cut)
+    reused: set = field(default_factory=set)
+    #: faces through a crossed edge (sorted vertex triples): flipped 2-3, else split
+    faces: list = field(default_factory=list)
+    #: crossed edges and their crossing parameters: removed (general flip), else bisected
+    edges: list = field(default_factory=list)
+
+
+#: ``flip_or_split_face`` flags (``kernels.topology``): the split point is not known yet, known, none
+_POINT_PENDING, _POINT_KNOWN, _POINT_NONE = 0, 1, 2
+
+
+def _known_point(point) -> tuple[int, np.ndarray]:
+    """The flag and reals of a face's split point (``Cutter._face_point``: None or (weights, on))."""
+    if point is None:
+        return _POINT_NONE, np.zeros(4)
+    return _POINT_KNOWN, np.append(point[0], 0.0)
+
+
 class _Sampling:
     """Crossings of the surface with the edges of candidate elements (thesis 5.1.1)."""
 
@@ -152,10 +178,15 @@ class Cutter:
             is not flat (thesis 6.1.2, 6.1.4): a crossed boundary edge is always bisected,
             never flipped, and no boundary vertex snaps. Either would replace boundary faces
             by others spanning several curved faces, which changes the surface and the volume.
+        compiled: insert the surface (steps 3-5) with the compiled operators
+            (``wcut.kernels.topology``) on the crossed elements, one launch per cut, rather
+            than the Python ones: the same operators in the same order, so the same mesh, but
+            where two triangulations of a general flip are equally good the compiled one takes
+            that of the polygon started at its smallest vertex.
     """
 
     def __init__(self, topology: TetTopology, method: str = "paulus", epsilon: float = 0.1,
-                 mean_edge_length: float | None = None, curved_boundary: bool = False):
+                 mean_edge_length: float | None = None, curved_boundary: bool = False, compiled: bool = True):
         if method not in METHODS:
             raise CutError(f"unknown cut method {method!r} (expected one of {', '.join(METHODS)})")
         if not (isinstance(epsilon, (int, float)) and 0.0 <= epsilon < 0.5):
@@ -164,6 +195,7 @@ class Cutter:
         self.method = method
         self.epsilon = float(epsilon)
         self.curved_boundary = bool(curved_boundary)
+        self.compiled = bool(compiled)
         if mean_edge_length is None:
             mean_edge_length = topology.to_mesh().mean_edge_length()
         self.mean_edge_length = float(mean_edge_length)
@@ -403,29 +435,29 @@ class Cutter:
         self._disconnect(surface, marked, stats)
 
     def _insert_surface(self, surface: CutSurface, sampling: _Sampling, stats: CutStats) -> set[int]:
-        """Steps 3-5: 1-4 splits, 2-3 flips / face splits, general flips / bisections.
-        Returns the vertices created on the surface."""
+        """Steps 3-5: 1-4 splits, 2-3 flips / face splits, general flips / bisections, by the
+        compiled operators (:meth:`_insert_compiled`) or the Python ones, which give the same
+        mesh. Returns the vertices created on the surface (and split vertices used again)."""
+        plan = self._plan(surface, sampling)
+        if self.compiled and not self.topology.unsewn:
+            return self._insert_compiled(surface, sampling, plan, stats)
+        return self._insert_python(surface, sampling, plan, stats)
+
+    def _plan(self, surface: CutSurface, sampling: _Sampling) -> "_Plan":
+        """The operators of steps 3-5, in the order they are applied."""
         topo = self.topology
-        marked: set[int] = set()
         cut_tets = [topo.tet(t) for t in sampling.cut_slots]
         reused = self.split_vertices & sampling.on
         # a piece of an element split before: its split vertex serves again
         again = [reused.intersection(tet) for tet in cut_tets]
         points = iter(self._element_points(surface, sampling, [tet for tet, a in zip(cut_tets, again) if not a]))
-        for t, tet, old in zip(sampling.cut_slots, cut_tets, again):
+        plan = _Plan()
+        for t, old in zip(sampling.cut_slots, again):
             if old:
-                marked |= old
-                continue
-            weights, real = next(points)
-            try:
-                p, _ = split_tet(topo, t, weights)
-            except TopologyError as exc:
-                stats.refused.append(str(exc))
-                continue
-            stats.split_elements += 1
-            self.split_vertices.add(p)
-            if real:
-                marked.add(p)
+                plan.reused |= old
+            else:
+                weights, real = next(points)
+                plan.splits.append((t, weights, real))
         faces = {}
         crossed = sampling.edges
         for tet in cut_tets:
@@ -436,7 +468,25 @@ class Cutter:
                 if ((a, b) if a < b else (b, a)) in crossed or ((b, c) if b < c else (c, b)) in crossed \
                         or ((a, c) if a < c else (c, a)) in crossed:
                     faces[face_key(a, b, c)] = None
-        for key in faces:
+        plan.faces = list(faces)
+        plan.edges = [(edge, t) for edge, (t, _) in crossed.items()]
+        return plan
+
+    def _insert_python(self, surface: CutSurface, sampling: _Sampling, plan: "_Plan", stats: CutStats) -> set[int]:
+        """:meth:`_insert_surface` by the Python operators on ``TetTopology``."""
+        topo = self.topology
+        marked = set(plan.reused)
+        for t, weights, real in plan.splits:
+            try:
+                p, _ = split_tet(topo, t, weights)
+            except TopologyError as exc:
+                stats.refused.append(str(exc))
+                continue
+            stats.split_elements += 1
+            self.split_vertices.add(p)
+            if real:
+                marked.add(p)
+        for key in plan.faces:
             if key not in topo.face_tets:
                 continue
             if len(topo.face_tets[key]) == 2:
@@ -457,7 +507,7 @@ class Cutter:
             stats.face_splits += 1
             if point[1]:
                 marked.add(r)
-        for (a, b), (t, _) in sampling.edges.items():
+        for (a, b), t in plan.edges:
             if not topo.edge_tets(a, b):
                 continue
             if not (self.curved_boundary and topo.is_boundary_edge(a, b)):
@@ -474,6 +524,75 @@ class Cutter:
                 continue
             stats.bisections += 1
             marked.add(m)
+        return marked
+
+    def _insert_compiled(self, surface: CutSurface, sampling: _Sampling, plan: "_Plan", stats: CutStats) -> set[int]:
+        """:meth:`_insert_surface` by the compiled operators, in one launch on the cut elements
+        copied into a :class:`TetRegion` and written back (every operator stays inside them:
+        a face or an edge the plan names is one of a crossed element with a crossed edge, and
+        every element around a crossed edge is crossed). A face whose flip is refused gets its
+        split point when the launch reaches it (the launch stops there: the point may cost a
+        query of S), unless S is a plane (computed before, cheaply)."""
+        region = TetRegion(self.topology, sampling.cut_slots)
+        local = region.local_vertex
+        ops = []
+        for t, weights, _ in plan.splits:
+            ops.append(("split_tet", [region.local_slot(t), -1, -1, -1], weights))
+        flat = type(surface) is Plane
+        points = {}
+        for key in plan.faces:
+            known = _POINT_PENDING
+            reals = np.zeros(4)
+            if flat:
+                point = points[key] = self._face_point(surface, sampling, key)
+                known, reals = _known_point(point)
+            ops.append(("flip_or_split_face", [local(key[0]), local(key[1]), local(key[2]), known], reals))
+        for (a, b), t in plan.edges:
+            ops.append(("remove_or_bisect_edge", [local(a), local(b), int(self.curved_boundary), -1], [t, 0, 0, 0]))
+        faces = plan.faces
+        first_face = len(plan.splits)
+
+        def resolve(i: int) -> tuple[list[int], np.ndarray]:
+            key = faces[i - first_face]
+            point = points[key] = self._face_point(surface, sampling, key)
+            known, reals = _known_point(point)
+            return [local(key[0]), local(key[1]), local(key[2]), known], reals
+
+        results = region.arrays.run([op[0] for op in ops], np.array([op[1] for op in ops], dtype=np.int32).reshape(-1, 4),
+                                    np.array([op[2] for op in ops], dtype=np.float64).reshape(-1, 4),
+                                    quality_drop=QUALITY_DROP, resolve=resolve, details=True)
+        made = region.write_back()
+        marked = set(plan.reused)
+        for i, (reason, vertex, fallback) in enumerate(results):
+            v = made.get(vertex, -1)
+            if i < first_face:
+                t, _, real = plan.splits[i]
+                if reason is None:
+                    stats.split_elements += 1
+                    self.split_vertices.add(v)
+                    if real:
+                        marked.add(v)
+                else:
+                    stats.refused.append(f"split 1-4 of element {t}: {reason}")
+            elif i < first_face + len(faces):
+                key = faces[i - first_face]
+                if reason is None and not fallback:
+                    stats.flips23 += 1
+                elif reason is None:
+                    stats.face_splits += 1
+                    if points[key][1]:
+                        marked.add(v)
+                elif fallback:
+                    stats.refused.append(f"split of face {key}: {reason}")
+            else:
+                (a, b), _ = plan.edges[i - first_face - len(faces)]
+                if reason is None and not fallback:
+                    stats.general_flips += 1
+                elif reason is None:
+                    stats.bisections += 1
+                    marked.add(v)
+                elif fallback:
+                    stats.refused.append(f"bisection of edge ({a}, {b}): {reason}")
         return marked
 
     def _move_keeps_quality(self, v: int, other: int, s: float) -> bool:

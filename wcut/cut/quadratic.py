@@ -193,7 +193,9 @@ class _CornerCutter(Cutter):
     elements around the snapped corner unfolded."""
 
     def __init__(self, owner: QuadraticCutter, **options):
-        super().__init__(owner.topology, curved_boundary=owner.curved_boundary, **options)
+        # the Python operators: the curved cutter is tested with their choice between equally
+        # good triangulations of a general flip
+        super().__init__(owner.topology, curved_boundary=owner.curved_boundary, compiled=False, **options)
         self._owner = owner
 
     def _move_keeps_quality(self, v: int, other: int, s: float) -> bool:

@@ -1,0 +1,72 @@
+"""A part of a TetTopology edited by the compiled operators and written back
+(wcut.topology.region), and the cutter's compiled insertion that uses it."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from wcut.cut import Cutter
+from wcut.cut.surface import Plane
+from wcut.mesh import beam, tet_volumes
+from wcut.topology import TetTopology, check_topology, remove_edge
+from wcut.topology.region import OUTSIDE, TetRegion
+
+
+def element_set(topo: TetTopology) -> list:
+    """The elements as sorted tuples of their corners' rest positions (rounded)."""
+    mesh = topo.to_mesh()
+    corners = np.round(mesh.vertices[mesh.tets], 12)
+    return sorted(tuple(sorted(map(tuple, tet.tolist()))) for tet in corners)
+
+
+def test_a_region_marks_faces_to_the_rest_of_the_mesh_and_writes_back_its_splits():
+    mesh = beam(4, 2, 2, size=(0.4, 0.2, 0.2))
+    topo = TetTopology(mesh)
+    topo.begin_change()
+    slots = [3, 4, 5, 20]
+    region = TetRegion(topo, slots)
+    neighbors = region.arrays.tet_neighbors.numpy()[: len(slots)]
+    assert (neighbors == OUTSIDE).any() and (neighbors == -1).any()
+    region.arrays.check()
+    assert region.arrays.split_tets([region.local_slot(4)], [[0.1, 0.2, 0.3, 0.4]]) == [None]
+    made = region.write_back()
+    assert list(made.values()) == [mesh.vertex_count]
+    check_topology(topo)
+    volume = float(tet_volumes(mesh.vertices, mesh.tets).sum())
+    assert abs(float(tet_volumes(topo.rest_positions, topo.tets[topo.live_tets()]).sum()) - volume) < 1e-12 * volume
+    change = topo.end_change()
+    assert change.vertex_count_after == mesh.vertex_count + 1 and len(change.removed_elements) == 1
+    assert (change.element_parent[change.added_elements] == 4).all()
+
+
+@settings(max_examples=15, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(point=st.tuples(st.floats(0.05, 0.55), st.floats(0.05, 0.25), st.floats(0.05, 0.25)),
+       normal=st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)).filter(
+           lambda n: np.linalg.norm(n) > 0.1),
+       epsilon=st.sampled_from([0.0, 0.1, 0.3]))
+def test_compiled_insertion_equals_the_python_operators(point, normal, epsilon):
+    """A plane cut with the compiled insertion gives the mesh and counts of the Python
+    operators (general flips started as the compiled walk starts them), and a valid mesh."""
+    import wcut.cut.cutter as cutter_module
+
+    mesh = beam(6, 3, 3, size=(0.6, 0.3, 0.3))
+    plane = Plane(point, normal)
+    results = []
+    original = cutter_module.remove_edge
+    cutter_module.remove_edge = functools.partial(remove_edge, canonical=True)
+    try:
+        for compiled in (False, True):
+            topo = TetTopology(mesh)
+            result = Cutter(topo, epsilon=epsilon, compiled=compiled).cut(plane)
+            check_topology(topo)
+            stats = dataclasses.asdict(result.stats)
+            stats["refused"] = len(stats["refused"])
+            results.append((element_set(topo), stats, result.change.vertex_count_after))
+    finally:
+        cutter_module.remove_edge = original
+    assert results[0] == results[1]
