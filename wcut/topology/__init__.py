@@ -6,8 +6,10 @@
 - :class:`TopologyChange`: how the mesh after a change derives from the mesh before.
 - ``check``: the invariants, verified from scratch.
 - ``arrays``: :class:`~wcut.topology.arrays.TetArrays`, the mesh as flat arrays with face
-  neighbours, edited by compiled operators (``wcut.kernels.topology``: so far the 1-4 split
-  and the 2-3 flip), one launch per batch; the cutter does not use it yet.
+  neighbours, edited by the compiled operators (``wcut.kernels.topology``: 1-4 split, face
+  split, 2-3 flip, general flip, bisection), one launch per batch.
+- ``region``: :class:`~wcut.topology.region.TetRegion`, the elements a cut crosses copied into
+  ``TetArrays`` and written back: the cutter's compiled insertion.
 - ``shell``: the operators of quadratic shells that fracture uses (open edges, move nodes,
   split a triangle into four) and their check (thesis 6.2).
 """

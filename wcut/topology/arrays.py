@@ -4,7 +4,8 @@
 compiled operators of ``wcut.kernels.topology`` edit: a batch of operators is one Warp
 launch, run in order by one thread, where ``TetTopology`` pays some 70 us of Python per
 operator (see that module). It holds the 1-4 split, the face split (1-3, 2-6), the 2-3 flip,
-the general flip and the bisection; the cutter still runs on ``TetTopology``.
+the general flip and the bisection; the cutter runs them on the elements a cut crosses
+(``wcut.topology.region``).
 
 Element slots only grow during a change (an operator's new elements take the slots of the
 elements they replace, then new ones are appended), so a slot's index is stable while it lives and the cost
