@@ -372,13 +372,14 @@ def find_tet(m: TetMeshArrays, a: int, b: int, c: int):
     if a < 0 or a >= m.counts[0]:
         return -1
     t = star_search(m, a, b, c)
-    if t == -2:
-        for s in range(m.counts[1]):
-            tet = m.tet_indices[s]
-            if t == -2 and m.tet_alive[s] != 0 and corner_of(tet, a) >= 0 and corner_of(tet, b) >= 0 \
-                    and (c < 0 or corner_of(tet, c) >= 0):
-                t = s
-    return wp.max(t, -1)
+    if t != -2:
+        return t
+    for s in range(m.counts[1]):
+        tet = m.tet_indices[s]
+        if m.tet_alive[s] != 0 and corner_of(tet, a) >= 0 and corner_of(tet, b) >= 0 \
+                and (c < 0 or corner_of(tet, c) >= 0):
+            return s
+    return -1
 
 
 @wp.func

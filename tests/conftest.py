@@ -151,3 +151,10 @@ def pyramid(bend: float = 0.0) -> TetMesh:
     """A square pyramid cut along base diagonal (0, 1); corner 3 raised by ``bend`` (0: coplanar base)."""
     v = [[0, 0, 0], [1, 1, 0], [1, 0, 0], [0, 1, bend], [0.5, 0.5, 1]]
     return TetMesh(v, [[0, 1, 4, 2], [0, 1, 4, 3]], name=f"pyramid({bend})")
+
+
+def element_set(mesh: TetMesh, decimals: int = 12) -> list:
+    """The elements as sorted tuples of rounded corner coordinates: equal for two meshes with
+    the same elements, whatever the numbering of vertices and elements."""
+    corners = np.round(mesh.vertices[mesh.tets], decimals)
+    return sorted(tuple(sorted(map(tuple, tet.tolist()))) for tet in corners)

@@ -12,7 +12,7 @@ from wcut.mesh import TetMesh, beam, tet_volumes
 from wcut.topology import TetTopology, TopologyError, face_key, flip23, split_tet
 from wcut.topology.arrays import TetArrays, face_neighbors
 
-from conftest import pyramid, ring, single_tet, two_tets
+from conftest import element_set, pyramid, ring, single_tet, two_tets
 
 
 def small() -> TetMesh:
@@ -21,13 +21,6 @@ def small() -> TetMesh:
 
 def volume(mesh: TetMesh) -> float:
     return float(tet_volumes(mesh.vertices, mesh.tets).sum())
-
-
-def element_set(mesh: TetMesh, decimals: int = 12) -> list:
-    """The elements as sorted tuples of rounded corner coordinates: equal for two meshes with
-    the same elements, whatever the numbering of vertices and elements."""
-    corners = np.round(mesh.vertices[mesh.tets], decimals)
-    return sorted(tuple(sorted(map(tuple, tet.tolist()))) for tet in corners)
 
 
 def slot_of_face(arrays: TetArrays, key) -> tuple[int, int]:

@@ -16,12 +16,7 @@ from wcut.mesh import beam, tet_volumes
 from wcut.topology import TetTopology, check_topology, remove_edge
 from wcut.topology.region import OUTSIDE, TetRegion
 
-
-def element_set(topo: TetTopology) -> list:
-    """The elements as sorted tuples of their corners' rest positions (rounded)."""
-    mesh = topo.to_mesh()
-    corners = np.round(mesh.vertices[mesh.tets], 12)
-    return sorted(tuple(sorted(map(tuple, tet.tolist()))) for tet in corners)
+from conftest import element_set
 
 
 def test_a_region_marks_faces_to_the_rest_of_the_mesh_and_writes_back_its_splits():
@@ -66,7 +61,7 @@ def test_compiled_insertion_equals_the_python_operators(point, normal, epsilon):
             check_topology(topo)
             stats = dataclasses.asdict(result.stats)
             stats["refused"] = len(stats["refused"])
-            results.append((element_set(topo), stats, result.change.vertex_count_after))
+            results.append((element_set(topo.to_mesh()), stats, result.change.vertex_count_after))
     finally:
         cutter_module.remove_edge = original
     assert results[0] == results[1]

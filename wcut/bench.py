@@ -348,10 +348,10 @@ def bench_topology_operators(name: str, cells, size, *, repeats: int = 5) -> dic
         for t in crossed.tolist():
             split_tet(topo, t, weights[0])
         counts = [0, 0]
-        for i, (operator, items) in enumerate(((flip23, keys), (remove_edge, edges))):
-            for item in items:
+        for i, (operator, calls) in enumerate(((flip23, [(key,) for key in keys]), (remove_edge, edges))):
+            for args in calls:
                 try:
-                    operator(topo, *(item if operator is remove_edge else (item,)))
+                    operator(topo, *args)
                     counts[i] += 1
                 except TopologyError:
                     pass

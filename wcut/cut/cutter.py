@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import WcutError
+from ..kernels import topology as kernels
 from ..mesh import TET_FACES
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
                         flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, tet_qualities,
@@ -132,15 +133,12 @@ class _Plan:
     edges: list = field(default_factory=list)
 
 
-#: ``flip_or_split_face`` flags (``kernels.topology``): the split point is not known yet, known, none
-_POINT_PENDING, _POINT_KNOWN, _POINT_NONE = 0, 1, 2
-
-
 def _known_point(point) -> tuple[int, np.ndarray]:
-    """The flag and reals of a face's split point (``Cutter._face_point``: None or (weights, on))."""
+    """The flag and reals of a face's split point (``Cutter._face_point``: None or (weights, on))
+    for a ``flip_or_split_face`` operator."""
     if point is None:
-        return _POINT_NONE, np.zeros(4)
-    return _POINT_KNOWN, np.append(point[0], 0.0)
+        return kernels.POINT_NONE, np.zeros(4)
+    return kernels.POINT_KNOWN, np.append(point[0], 0.0)
 
 
 class _Sampling:
@@ -535,32 +533,31 @@ class Cutter:
         query of S), unless S is a plane (computed before, cheaply)."""
         region = TetRegion(self.topology, sampling.cut_slots)
         local = region.local_vertex
+        faces = plan.faces
+        first_face = len(plan.splits)
+        points = {}
+
+        def face_row(i: int) -> tuple[list[int], np.ndarray]:
+            """Operator i's row, face ``faces[i - first_face]`` with its split point."""
+            key = faces[i - first_face]
+            points[key] = self._face_point(surface, sampling, key)
+            known, reals = _known_point(points[key])
+            return [local(key[0]), local(key[1]), local(key[2]), known], reals
+
         ops = []
         for t, weights, _ in plan.splits:
             ops.append(("split_tet", [region.local_slot(t), -1, -1, -1], weights))
-        flat = type(surface) is Plane
-        points = {}
-        for key in plan.faces:
-            known = _POINT_PENDING
-            reals = np.zeros(4)
-            if flat:
-                point = points[key] = self._face_point(surface, sampling, key)
-                known, reals = _known_point(point)
-            ops.append(("flip_or_split_face", [local(key[0]), local(key[1]), local(key[2]), known], reals))
+        for i, key in enumerate(faces, start=first_face):
+            if type(surface) is Plane:
+                ops.append(("flip_or_split_face", *face_row(i)))
+            else:
+                ops.append(("flip_or_split_face", [local(v) for v in key] + [kernels.POINT_PENDING], np.zeros(4)))
         for (a, b), t in plan.edges:
             ops.append(("remove_or_bisect_edge", [local(a), local(b), int(self.curved_boundary), -1], [t, 0, 0, 0]))
-        faces = plan.faces
-        first_face = len(plan.splits)
-
-        def resolve(i: int) -> tuple[list[int], np.ndarray]:
-            key = faces[i - first_face]
-            point = points[key] = self._face_point(surface, sampling, key)
-            known, reals = _known_point(point)
-            return [local(key[0]), local(key[1]), local(key[2]), known], reals
-
-        results = region.arrays.run([op[0] for op in ops], np.array([op[1] for op in ops], dtype=np.int32).reshape(-1, 4),
-                                    np.array([op[2] for op in ops], dtype=np.float64).reshape(-1, 4),
-                                    quality_drop=QUALITY_DROP, resolve=resolve, details=True)
+        kinds, ints, reals = zip(*ops) if ops else ((), (), ())
+        results = region.arrays.run(list(kinds), np.array(ints, dtype=np.int32).reshape(-1, 4),
+                                    np.array(reals, dtype=np.float64).reshape(-1, 4),
+                                    quality_drop=QUALITY_DROP, resolve=face_row, details=True)
         made = region.write_back()
         marked = set(plan.reused)
         for i, (reason, vertex, fallback) in enumerate(results):

@@ -18,21 +18,28 @@ import numpy as np
 import warp as wp
 
 from ..errors import WcutError
+from ..kernels import topology as kernels
 from ..mesh import DEGENERATE_TOL, TetMesh, tet_volumes
 from .mesh import TopologyError
 
-#: why an operator was refused, by status code (``wcut.kernels.topology``)
-REFUSALS = {1: "a new element would be inverted or flat", 2: "no room left in the arrays",
-            3: "not an operator's input (a dead element, a boundary face, bad weights)",
-            4: "the new edge does not cross the face", 5: "its worst element would be too poor",
-            6: "it would change the volume (the edge's boundary faces are not coplanar)",
-            7: "no such face or edge (or too many elements around it)", 10: "no split point"}
-#: status codes on which a batch stops: the arrays are full, a split point is needed
-_FULL, _NEEDS_POINT = 2, 8
+#: why an operator was refused, by status code
+REFUSALS = {
+    kernels.REFUSED_SHAPE: "a new element would be inverted or flat",
+    kernels.REFUSED_FULL: "no room left in the arrays",
+    kernels.REFUSED_INPUT: "not an operator's input (a dead element, a boundary face, bad weights)",
+    kernels.REFUSED_CROSSING: "the new edge does not cross the face",
+    kernels.REFUSED_QUALITY_DROP: "its worst element would be too poor",
+    kernels.REFUSED_VOLUME: "it would change the volume (the edge's boundary faces are not coplanar)",
+    kernels.REFUSED_MISSING: "no such face or edge (or too many elements around it)",
+    kernels.NO_POINT: "no split point",
+}
 
-#: operator names of :meth:`TetArrays.run`, and their kind in ``kernels.topology``
-OPERATORS = {"split_tet": 0, "flip_face": 1, "split_face": 2, "remove_edge": 3, "bisect_edge": 4,
-             "flip_or_split_face": 5, "remove_or_bisect_edge": 6}
+#: operator names of :meth:`TetArrays.run`, and their kind
+OPERATORS = {
+    "split_tet": kernels.SPLIT_TET, "flip_face": kernels.FLIP_FACE, "split_face": kernels.SPLIT_FACE,
+    "remove_edge": kernels.REMOVE_EDGE, "bisect_edge": kernels.BISECT_EDGE,
+    "flip_or_split_face": kernels.FLIP_OR_SPLIT_FACE, "remove_or_bisect_edge": kernels.REMOVE_OR_BISECT_EDGE,
+}
 
 
 def face_neighbors(tets: np.ndarray) -> np.ndarray:
@@ -227,8 +234,6 @@ class TetArrays:
         give operator i's ``(ints, reals)`` row: a face split point not known before).
         Returns per operator None when done, else why it was refused; with ``details``
         (reason, vertex made or -1, whether the fallback operator ran)."""
-        from ..kernels import topology as k
-
         count = len(ints)
         names = [kinds] if isinstance(kinds, str) else kinds
         kinds = np.broadcast_to(np.asarray([OPERATORS[n] for n in names], dtype=np.int32), (count,))
@@ -242,38 +247,36 @@ class TetArrays:
             made = wp.zeros(count - first, dtype=wp.vec2i, device=self.device)
             inputs = [wp.array(a[first:], dtype=t, device=self.device)
                       for a, t in ((kinds, wp.int32), (ints, wp.vec4i), (reals, wp.vec4d))]
-            wp.launch(k.run_operators, 1, device=self.device,
+            wp.launch(kernels.run_operators, 1, device=self.device,
                       inputs=[self.view(), *inputs, wp.float64(DEGENERATE_TOL), wp.float64(quality_drop),
                               wp.float64(volume_tolerance)], outputs=[status, made])
             codes[first:] = status.numpy()
             results[first:] = made.numpy()
-            stops = np.flatnonzero((codes[first:] == _FULL) | (codes[first:] == _NEEDS_POINT))
+            stops = np.flatnonzero(np.isin(codes[first:], (kernels.REFUSED_FULL, kernels.NEEDS_POINT)))
             if not len(stops):
                 break
             first += int(stops[0])
-            if codes[first] == _FULL:
+            if codes[first] == kernels.REFUSED_FULL:
                 self._grow()
             else:
                 ints[first], reals[first] = resolve(first)
-        reasons = [None if c == 0 else REFUSALS[int(c)] for c in codes.tolist()]
+        reasons = [None if c == kernels.DONE else REFUSALS[int(c)] for c in codes.tolist()]
         if not details:
             return reasons
         return [(r, int(v), bool(f == 1)) for r, (v, f) in zip(reasons, results.tolist())]
 
     def view(self):
         """The arrays as the ``kernels.topology.TetMeshArrays`` struct the kernels take."""
-        from ..kernels import topology as k
-
         if self._view is None:
-            view = k.TetMeshArrays()
+            view = kernels.TetMeshArrays()
             for name in self._TYPES:
                 setattr(view, name, getattr(self, name))
             view.counts = self.counts
-            scratch = {"removed": (wp.int32, k.MAX_RING), "added": (wp.vec4i, k.MAX_ADDED),
-                       "added_parent": (wp.int32, k.MAX_ADDED), "outer_face": (wp.vec3i, 4 * k.MAX_RING),
-                       "outer_tet": (wp.int32, 4 * k.MAX_RING), "star": (wp.int32, k.MAX_STAR),
-                       "polygon": (wp.int32, k.POLYGON), "best": (wp.float64, k.POLYGON**2),
-                       "apex": (wp.int32, k.POLYGON**2)}
+            scratch = {"removed": (wp.int32, kernels.MAX_RING), "added": (wp.vec4i, kernels.MAX_ADDED),
+                       "added_parent": (wp.int32, kernels.MAX_ADDED), "outer_face": (wp.vec3i, 4 * kernels.MAX_RING),
+                       "outer_tet": (wp.int32, 4 * kernels.MAX_RING), "star": (wp.int32, kernels.MAX_STAR),
+                       "polygon": (wp.int32, kernels.POLYGON), "best": (wp.float64, kernels.POLYGON**2),
+                       "apex": (wp.int32, kernels.POLYGON**2)}
             for name, (dtype, size) in scratch.items():
                 setattr(view, name, wp.zeros(size, dtype=dtype, device=self.device))
             self._view = view
