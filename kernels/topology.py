@@ -1,4 +1,4 @@
-"""Compiled topology operators on flat arrays (thesis 5.1): the core the cutter is moving to.
+"""Compiled topology operators on flat arrays (thesis 5.1): the core of the cutter's remeshing.
 
 A Python operator call costs some 70 us on this project's machine (adjacency in dicts and
 sets, its checks in Python floats), and a plane crossing 100 elements takes about 700 of
@@ -23,6 +23,10 @@ Layout (:class:`TetMeshArrays`; ``wcut.topology.arrays.TetArrays`` owns the arra
 - ``counts``: [vertex count, element slot count];
 - scratch rows for the one thread: the elements an operator removes and adds, the outer faces,
   the elements of a vertex's star, an edge's polygon and the triangulation tables.
+
+The disconnection (thesis 5.1.3, :func:`disconnect`) is a kernel of its own: unsewn faces
+are flags of a scratch array that only it reads, and it ends with faces either sewn again or
+boundary, so the operators never see an unsewn face.
 
 Every operator checks before it writes, and refuses (returns a ``REFUSED_*`` code, arrays
 untouched) unless every new element is well shaped in the rest configuration, in float64
@@ -850,3 +854,168 @@ def run_operators(
         status[i] = code
         if code == REFUSED_FULL or code == NEEDS_POINT:
             stop = 1
+
+
+# ------------------------------------------------------------ disconnection
+@wp.func
+def back_corner(m: TetMeshArrays, n: int, t: int):
+    """The corner of element n whose opposite face is shared with element t (-1: none)."""
+    for k in range(4):
+        if m.tet_neighbors[n][k] == t:
+            return k
+    return -1
+
+
+@wp.func
+def set_opened(opened: wp.array(dtype=wp.vec4i), t: int, k: int, value: int):
+    flags = opened[t]
+    flags[k] = value
+    opened[t] = flags
+
+
+@wp.func
+def duplicate_vertex(m: TetMeshArrays, v: int, members: wp.array(dtype=wp.int32), first: int, count: int,
+                     opened: wp.array(dtype=wp.vec4i), fan: wp.array(dtype=wp.int32),
+                     stack: wp.array(dtype=wp.int32)):
+    """Split vertex v, whose elements are ``members[first:first + count]`` in increasing slot
+    order, into one copy per fan: the elements around v connected through faces on v that are
+    not ``opened`` (thesis figure 4.8, ``operators.duplicate_vertex``). The largest fan keeps
+    v (the first by smallest slot among equals), each other fan gets a new vertex with v's
+    attributes, in that order. An opened face whose two elements move to the same copy is
+    sewn again (``TetTopology.retarget`` forgets it), one between two copies is apart for
+    good. Returns the copies made, -1 without room for them (nothing changed)."""
+    fans = int(0)
+    for i in range(first, first + count):  # label the fans by a search from each element not reached yet
+        if fan[members[i]] < 0:
+            fan[members[i]] = fans
+            stack[0] = members[i]
+            depth = int(1)
+            while depth > 0:
+                depth -= 1
+                t = stack[depth]
+                tet = m.tet_indices[t]
+                for k in range(4):
+                    n = m.tet_neighbors[t][k]
+                    if tet[k] != v and n >= 0 and opened[t][k] == 0:
+                        if fan[n] < 0:
+                            fan[n] = fans
+                            stack[depth] = n
+                            depth += 1
+            fans += 1
+    copies = fans - 1
+    if copies > 0 and not has_room(m, copies, 0):
+        copies = -1
+    if copies > 0:
+        for f in range(fans):  # sizes, in the stack (free now): fans are numbered by smallest slot
+            stack[f] = 0
+        for i in range(first, first + count):
+            stack[fan[members[i]]] += 1
+        keeper = int(0)
+        for f in range(fans):
+            if stack[f] > stack[keeper]:
+                keeper = f
+        stack[keeper] = -1
+        for rank in range(copies):  # the others, largest first
+            f = int(-1)
+            for g in range(fans):
+                if stack[g] >= 0 and (f < 0 or stack[g] > stack[f]):
+                    f = g
+            stack[f] = -1
+            w = add_vertex(m, wp.vec4i(v, -1, -1, -1), wp.vec4d(1.0, 0.0, 0.0, 0.0), -1)
+            for i in range(first, first + count):
+                t = members[i]
+                if fan[t] == f:
+                    tet = m.tet_indices[t]
+                    for k in range(4):
+                        n = m.tet_neighbors[t][k]
+                        if tet[k] != v and n >= 0 and opened[t][k] != 0 and fan[n] == f:
+                            set_opened(opened, t, k, 0)
+                            set_opened(opened, n, back_corner(m, n, t), 0)
+                    m.tet_indices[t] = substitute(tet, v, w)
+                    m.vertex_tet[w] = t
+            for i in range(first, first + count):
+                if fan[members[i]] == keeper:
+                    m.vertex_tet[v] = members[i]
+    for i in range(first, first + count):
+        fan[members[i]] = -1
+    return copies
+
+
+@wp.kernel
+def disconnect(
+    m: TetMeshArrays,
+    faces: wp.array(dtype=wp.vec2i),
+    vertices: wp.array(dtype=wp.int32),
+    first: int,
+    opened: wp.array(dtype=wp.vec4i),
+    fan: wp.array(dtype=wp.int32),
+    stack: wp.array(dtype=wp.int32),
+    row_of: wp.array(dtype=wp.int32),
+    offsets: wp.array(dtype=wp.int32),
+    cursor: wp.array(dtype=wp.int32),
+    members: wp.array(dtype=wp.int32),
+    status: wp.array(dtype=wp.int32),
+):
+    """Unsew ``faces`` (element, corner opposite) and duplicate ``vertices[first:]`` in order
+    (:func:`duplicate_vertex`), then make the faces whose elements no longer share them
+    boundary (the others are sewn again: ``operators.sew_unopened``). Launch one thread.
+    Scratch: ``opened`` (zeros), ``fan`` (-1) and ``stack`` of the element capacity,
+    ``row_of`` (-1) of the vertex capacity, ``offsets`` (zeros) of one more than
+    ``vertices``, ``cursor`` (zeros) as ``vertices``, ``members`` of four times the element
+    capacity. ``status``: [code,
+    vertices done, copies made]; :data:`REFUSED_FULL` stops before the vertex without room
+    (the host grows the arrays and runs from there), :data:`REFUSED_INPUT` at a face that is
+    not interior (nothing changed)."""
+    status[0] = DONE
+    status[1] = first
+    status[2] = 0
+    for i in range(faces.shape[0]):
+        t = faces[i][0]
+        k = faces[i][1]
+        if not live(m, t) or k < 0 or k > 3 or m.tet_neighbors[t][k] < 0:
+            status[0] = REFUSED_INPUT
+            return
+    for i in range(faces.shape[0]):
+        t = faces[i][0]
+        k = faces[i][1]
+        n = m.tet_neighbors[t][k]
+        set_opened(opened, t, k, 1)
+        set_opened(opened, n, back_corner(m, n, t), 1)
+    # the elements of each vertex, in increasing slot order (a counting sort: one pass over the
+    # elements, not one per vertex; a copy's elements keep the other vertices they have)
+    for i in range(first, vertices.shape[0]):
+        row_of[vertices[i]] = i
+    for s in range(m.counts[1]):
+        if m.tet_alive[s] != 0:
+            for k in range(4):
+                r = row_of[m.tet_indices[s][k]]
+                if r >= 0:
+                    offsets[r + 1] += 1
+    for i in range(first, vertices.shape[0]):
+        offsets[i + 1] += offsets[i]
+    for s in range(m.counts[1]):
+        if m.tet_alive[s] != 0:
+            for k in range(4):
+                r = row_of[m.tet_indices[s][k]]
+                if r >= 0:
+                    members[offsets[r] + cursor[r]] = s
+                    cursor[r] += 1
+    for i in range(first, vertices.shape[0]):
+        copies = duplicate_vertex(m, vertices[i], members, offsets[i], offsets[i + 1] - offsets[i], opened, fan,
+                                  stack)
+        if copies < 0:
+            status[0] = REFUSED_FULL
+            return
+        status[1] = i + 1
+        status[2] += copies
+    for i in range(faces.shape[0]):
+        t = faces[i][0]
+        k = faces[i][1]
+        n = m.tet_neighbors[t][k]
+        if n >= 0 and not has_face(m.tet_indices[n], face_opposite(m.tet_indices[t], k)):
+            back = m.tet_neighbors[n]
+            back[back_corner(m, n, t)] = -1
+            m.tet_neighbors[n] = back
+            mine = m.tet_neighbors[t]
+            mine[k] = -1
+            m.tet_neighbors[t] = mine

@@ -459,17 +459,19 @@ CRUMBLY = {
 }
 
 
-@pytest.mark.parametrize("case", CRUMBLY)
-def test_progressive_cuts_keep_crumbs_attached(case, monkeypatch):
-    topo, cutter = _progressive_bent_cut(*CRUMBLY[case], compiled=False)
+@pytest.mark.parametrize("case, compiled", [(case, False) for case in CRUMBLY] + [("snap", True)])
+def test_progressive_cuts_keep_crumbs_attached(case, compiled, monkeypatch):
+    """(The snap case by the compiled disconnection too, which applies the rule on a region's
+    arrays: it frees crumbs without it.)"""
+    topo, cutter = _progressive_bent_cut(*CRUMBLY[case], compiled=compiled)
     check_topology(topo)
     assert_no_crumbs(topo, cutter)
     pieces = _pieces(topo, cutter)
     halves = 1 if case == "snap" else 2  # snapping alone cannot cut between the nodes: no separation
     assert len(pieces) == halves and min(p[1] for p in pieces) > 50.0
     # the case does exercise the rule: without it, the same cut frees crumbs
-    monkeypatch.setattr(Cutter, "_keep_attached", lambda self, opened: opened)
-    topo, cutter = _progressive_bent_cut(*CRUMBLY[case], compiled=False)
+    monkeypatch.setattr(Cutter, "_keep_attached", lambda self, opened, mesh: opened)
+    topo, cutter = _progressive_bent_cut(*CRUMBLY[case], compiled=compiled)
     with pytest.raises(AssertionError, match="crumbs"):
         assert_no_crumbs(topo, cutter)
 

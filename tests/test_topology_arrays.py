@@ -11,6 +11,7 @@ from wcut.errors import WcutError
 from wcut.mesh import TetMesh, beam, tet_volumes
 from wcut.topology import TetTopology, TopologyError, face_key, flip23, split_tet
 from wcut.topology.arrays import TetArrays, face_neighbors
+from wcut.topology.check import connected_components
 
 from conftest import element_set, pyramid, ring, single_tet, two_tets
 
@@ -346,3 +347,136 @@ def test_operators_grow_the_arrays_when_full():
     assert arrays.bisect_edges([(0, 1)], [0.5]) == [None]
     assert len(arrays.live_tets()) == 12
     arrays.check(volume(mesh), 1e-12)
+
+
+def interior_faces_at(arrays: TetArrays, x: float) -> list[tuple[int, int]]:
+    """(element, corner opposite) of the interior faces whose vertices all have rest x = ``x``,
+    one side each."""
+    rest, tets = arrays.vertex_rest.numpy(), arrays.tet_indices.numpy()
+    neighbors = arrays.tet_neighbors.numpy()
+    faces = []
+    for t in arrays.live_tets().tolist():
+        for k in range(4):
+            corners = [v for i, v in enumerate(tets[t].tolist()) if i != k]
+            if neighbors[t, k] > t and np.allclose(rest[corners, 0], x):
+                faces.append((t, k))
+    return faces
+
+
+def test_disconnect_along_a_plane_of_faces_parts_the_mesh():
+    mesh = small()
+    arrays = TetArrays(mesh)
+    faces = interior_faces_at(arrays, 0.2)
+    tets = arrays.tet_indices.numpy()
+    vertices = sorted({v for t, k in faces for i, v in enumerate(tets[t].tolist()) if i != k})
+    assert len(vertices) == 9
+    assert arrays.disconnect(faces, vertices) == 9
+    arrays.check(volume(mesh), 1e-12)
+    cut = arrays.to_mesh()
+    assert cut.vertex_count == mesh.vertex_count + 9
+    assert len(set(connected_components(cut).tolist())) == 2
+    copies = np.arange(mesh.vertex_count, cut.vertex_count)
+    originals = arrays.vertex_parents.numpy()[copies, 0]
+    assert originals.tolist() == vertices
+    np.testing.assert_array_equal(cut.vertices[copies], cut.vertices[originals])
+
+
+def test_disconnect_sews_again_the_faces_at_the_front_of_a_partial_cut():
+    mesh = small()
+    arrays = TetArrays(mesh)
+    rest, tets = arrays.vertex_rest.numpy(), arrays.tet_indices.numpy()
+    faces = [(t, k) for t, k in interior_faces_at(arrays, 0.2)
+             if rest[[v for i, v in enumerate(tets[t].tolist()) if i != k], 1].max() < 0.1 + 1e-9]
+    vertices = sorted({v for t, k in faces for i, v in enumerate(tets[t].tolist()) if i != k})
+    copies = arrays.disconnect(faces, vertices)
+    arrays.check(volume(mesh), 1e-12)
+    # the vertices on the boundary y = 0 open; those at y = 0.1 (the front) stay whole
+    assert copies == int(np.sum(np.isclose(rest[vertices, 1], 0.0)))
+    cut = arrays.to_mesh()
+    assert len(set(connected_components(cut).tolist())) == 1
+
+
+def test_disconnect_refuses_a_boundary_face_and_grows_when_full():
+    mesh = small()
+    arrays = TetArrays(mesh)
+    neighbors = arrays.tet_neighbors.numpy()
+    t, k = map(int, np.argwhere(neighbors < 0)[0])
+    with pytest.raises(TopologyError, match="input"):
+        arrays.disconnect([(t, k)], [])
+    full = TetArrays(mesh, spare=1)
+    faces = interior_faces_at(full, 0.2)
+    tets = full.tet_indices.numpy()
+    vertices = sorted({v for t, k in faces for i, v in enumerate(tets[t].tolist()) if i != k})
+    assert full.disconnect(faces, vertices) == 9
+    full.check(volume(mesh), 1e-12)
+
+
+def plane_pieces(topo: TetTopology, pieces) -> list:
+    """Keys of the interior faces of ``topo`` on pieces of planes: (axis, c, other, bound) for
+    x_axis = c where x_other stays below the bound (crossing partial cuts)."""
+    x = topo.rest_positions
+    keys = set()
+    for axis, c, other, bound in pieces:
+        keys |= {key for key, owners in topo.face_tets.items() if len(owners) == 2
+                 and np.allclose(x[list(key), axis], c) and x[list(key), other].max() <= bound + 1e-9}
+    return sorted(keys)
+
+
+def python_disconnect(topo: TetTopology, keys: list) -> list[int]:
+    """``unsew_face`` for each key, ``duplicate_vertex`` of their vertices in increasing
+    order, ``sew_unopened``: the copies."""
+    from wcut.topology import duplicate_vertex, sew_unopened, unsew_face
+
+    for key in keys:
+        unsew_face(topo, key)
+    copies = [w for v in sorted({v for key in keys for v in key}) for w in duplicate_vertex(topo, v)]
+    sew_unopened(topo)
+    return copies
+
+
+def test_disconnect_sews_again_a_face_whose_elements_move_to_the_same_copy():
+    """Two crossing partial cuts (x = 0.1 for y <= 0.2, y = 0.1 for z <= 0.1): a face unsewn
+    at the front of one joins two elements of the same fan of a vertex of the other, whose
+    copy they both take; ``TetTopology.retarget`` then sews it again, and so must the
+    compiled one (otherwise it makes a copy more)."""
+    mesh = beam(3, 3, 3, size=(0.3, 0.3, 0.3))
+    arrays, topo = TetArrays(mesh), TetTopology(mesh)
+    keys = plane_pieces(topo, [(0, 0.1, 1, 0.2), (1, 0.1, 2, 0.1)])
+    copies = python_disconnect(topo, keys)
+    assert arrays.disconnect([slot_of_face(arrays, key) for key in keys], sorted({v for k in keys for v in k})) \
+        == len(copies) == 12
+    np.testing.assert_array_equal(arrays.to_mesh().tets, topo.to_mesh().tets)
+    arrays.check(volume(mesh), 1e-12)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_disconnect_equals_the_python_operators(data):
+    """Interior faces (random ones, or on crossing pieces of planes) of a mesh split by a
+    few random 1-4 splits, unsewn, then their vertices duplicated in increasing order: the
+    same elements (slot by slot), copies and boundary as ``unsew_face``, ``duplicate_vertex``
+    and ``sew_unopened`` on ``TetTopology``."""
+    mesh = beam(3, 3, 3, size=(0.3, 0.3, 0.3))
+    arrays, topo = TetArrays(mesh, spare=4), TetTopology(mesh)
+    for t in data.draw(st.lists(st.sampled_from(range(mesh.tet_count)), max_size=3, unique=True)):
+        w = random_weights(data, 4)
+        if arrays.split_tets([t], [w])[0] is None:
+            split_tet(topo, t, w)
+    np.testing.assert_array_equal(arrays.to_mesh().tets, topo.to_mesh().tets)
+    interior = sorted(key for key, owners in topo.face_tets.items() if len(owners) == 2)
+    if data.draw(st.booleans()):
+        piece = st.tuples(st.sampled_from([0, 1, 2]), st.sampled_from([0.1, 0.2]), st.sampled_from([0, 1, 2]),
+                          st.sampled_from([0.1, 0.2, 0.3]))
+        keys = plane_pieces(topo, data.draw(st.lists(piece.filter(lambda p: p[0] != p[2]), min_size=1, max_size=3)))
+    else:
+        keys = data.draw(st.lists(st.sampled_from(interior), min_size=1, max_size=25, unique=True))
+    vertices = sorted({v for key in keys for v in key})
+    copies = python_disconnect(topo, keys)
+    assert arrays.disconnect([slot_of_face(arrays, key) for key in keys], vertices) == len(copies)
+    arrays.check(volume(mesh), 1e-12)
+    np.testing.assert_array_equal(arrays.to_mesh().tets, topo.to_mesh().tets)
+    np.testing.assert_array_equal(arrays.to_mesh().vertices, topo.to_mesh().vertices)
+    neighbors = arrays.tet_neighbors.numpy()
+    for t in topo.live_tets().tolist():  # boundary where the topology has a face with one element
+        for k, key in enumerate(face_key(*(topo.tet(t)[:k] + topo.tet(t)[k + 1:])) for k in range(4)):
+            assert (neighbors[t, k] < 0) == (len(topo.face_tets[key]) == 1)

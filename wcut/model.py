@@ -258,6 +258,17 @@ def _forces_after(old: np.ndarray, change, touched: np.ndarray) -> np.ndarray:
     return forces
 
 
+def _device_array(host, dtype, device):
+    """A device array of host data (converted to ``dtype``'s scalar type). On the CPU the
+    converted copy is wrapped rather than copied again (``wp.array`` converts, then copies):
+    a rebuild uploads every per-element array of the mesh."""
+    if not wp.get_device(device).is_cpu:
+        return wp.array(host, dtype=dtype, device=device)
+    scalar = getattr(dtype, "_wp_scalar_type_", dtype)
+    converted = np.array(host, dtype=np.float32 if scalar is float else wp.dtype_to_numpy(scalar), order="C")
+    return wp.array(converted, dtype=dtype, device=device, copy=False)
+
+
 def _is_shell(mesh) -> bool:
     return isinstance(mesh, ShellMesh)
 
@@ -287,10 +298,10 @@ class State:
         uploaded once (no initial values to overwrite)."""
         state = cls.__new__(cls)
         d = model.device
-        state.particle_q = wp.array(particle_q, dtype=wp.vec3, device=d)
-        state.particle_qd = wp.array(particle_qd, dtype=wp.vec3, device=d)
-        state.particle_f = wp.array(particle_f, dtype=wp.vec3, device=d)
-        state.tet_rotation = wp.array(tet_rotation, dtype=wp.quat, device=d)
+        state.particle_q = _device_array(particle_q, dtype=wp.vec3, device=d)
+        state.particle_qd = _device_array(particle_qd, dtype=wp.vec3, device=d)
+        state.particle_f = _device_array(particle_f, dtype=wp.vec3, device=d)
+        state.tet_rotation = _device_array(tet_rotation, dtype=wp.quat, device=d)
         return state
 
     def clear_forces(self) -> None:
@@ -451,22 +462,22 @@ class Model:
 
         d = self.device
         self.attachment_count = len(attachments)
-        self.particle_q = wp.array(rest, dtype=wp.vec3, device=d)
+        self.particle_q = _device_array(rest, dtype=wp.vec3, device=d)
         self.particle_qd = wp.zeros(N, dtype=wp.vec3, device=d)
-        self.particle_mass = wp.array(mass, dtype=float, device=d)
-        self.particle_load_mass = wp.array(load_mass, dtype=float, device=d)
-        self.particle_fixed = wp.array(fixed_mask, dtype=wp.int32, device=d)
-        self.tet_indices = wp.array(tets.astype(np.int32), dtype=index_type, device=d)
-        self.tet_poses = wp.array(poses, dtype=wp.mat33, device=d)
-        self.tet_rest_volume = wp.array(rest_volume, dtype=float, device=d)
-        self.tet_stiffness = wp.array(stiffness, dtype=wp.vec2, device=d)
-        self.tet_density = wp.array(rho, dtype=float, device=d)
-        self.tet_youngs_modulus = wp.array(E, dtype=float, device=d)
-        self.tet_poisson_ratio = wp.array(nu, dtype=float, device=d)
-        self.attachment_indices = wp.array(attachments.indices.reshape(-1, 4), dtype=wp.vec4i, device=d)
-        self.attachment_weights = wp.array(attachments.weights.reshape(-1, 4), dtype=wp.vec4, device=d)
-        self.attachment_stiffness = wp.array(attachments.stiffness, dtype=float, device=d)
-        self.attachment_rest_points = wp.array(rest_points, dtype=wp.vec3, device=d)
+        self.particle_mass = _device_array(mass, dtype=float, device=d)
+        self.particle_load_mass = _device_array(load_mass, dtype=float, device=d)
+        self.particle_fixed = _device_array(fixed_mask, dtype=wp.int32, device=d)
+        self.tet_indices = _device_array(tets.astype(np.int32), dtype=index_type, device=d)
+        self.tet_poses = _device_array(poses, dtype=wp.mat33, device=d)
+        self.tet_rest_volume = _device_array(rest_volume, dtype=float, device=d)
+        self.tet_stiffness = _device_array(stiffness, dtype=wp.vec2, device=d)
+        self.tet_density = _device_array(rho, dtype=float, device=d)
+        self.tet_youngs_modulus = _device_array(E, dtype=float, device=d)
+        self.tet_poisson_ratio = _device_array(nu, dtype=float, device=d)
+        self.attachment_indices = _device_array(attachments.indices.reshape(-1, 4), dtype=wp.vec4i, device=d)
+        self.attachment_weights = _device_array(attachments.weights.reshape(-1, 4), dtype=wp.vec4, device=d)
+        self.attachment_stiffness = _device_array(attachments.stiffness, dtype=float, device=d)
+        self.attachment_rest_points = _device_array(rest_points, dtype=wp.vec3, device=d)
         self.tri_count = self.edge_count = 0
 
     def _upload_shell(self, mesh, rest, rho, E, nu, thickness, fixed_mask, attachments: Attachments) -> None:

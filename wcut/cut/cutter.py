@@ -38,11 +38,11 @@ import numpy as np
 
 from ..errors import WcutError
 from ..kernels import topology as kernels
-from ..mesh import TET_FACES
+from ..mesh import TET_FACES, tet_volumes
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
                         flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, tet_qualities,
                         unsew_face)
-from ..topology.region import TetRegion
+from ..topology.region import OUTSIDE, TetRegion
 from .surface import CutSurface, Plane, TriangleSurface
 
 METHODS = ("paulus", "bielser", "snap", "delete")
@@ -52,6 +52,8 @@ TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 
 #: ``TET_FACES`` as tuples, for plain-Python loops.
 _TET_FACES = tuple(tuple(face) for face in TET_FACES.tolist())
+#: the corners of the face opposite each corner of an element (the arrays' face numbering)
+_FACE_CORNERS = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
 
 #: Distance (relative to the mean rest edge length) within which a vertex is on the surface.
 ON_SURFACE_TOL = 1e-6
@@ -133,12 +135,12 @@ class _Plan:
     edges: list = field(default_factory=list)
 
 
-def _known_point(point) -> tuple[int, np.ndarray]:
+def _known_point(point) -> tuple[int, list[float]]:
     """The flag and reals of a face's split point (``Cutter._face_point``: None or (weights, on))
     for a ``flip_or_split_face`` operator."""
     if point is None:
-        return kernels.POINT_NONE, np.zeros(4)
-    return kernels.POINT_KNOWN, np.append(point[0], 0.0)
+        return kernels.POINT_NONE, [0.0, 0.0, 0.0, 0.0]
+    return kernels.POINT_KNOWN, [*point[0].tolist(), 0.0]
 
 
 class _Sampling:
@@ -176,11 +178,13 @@ class Cutter:
             is not flat (thesis 6.1.2, 6.1.4): a crossed boundary edge is always bisected,
             never flipped, and no boundary vertex snaps. Either would replace boundary faces
             by others spanning several curved faces, which changes the surface and the volume.
-        compiled: insert the surface (steps 3-5) with the compiled operators
-            (``wcut.kernels.topology``) on the crossed elements, one launch per cut, rather
+        compiled: insert the surface and disconnect along it (steps 3-6 of ``paulus``, step 6
+            of ``snap``) with the compiled operators (``wcut.kernels.topology``) on the crossed
+            elements and those around the vertices on the cut, two launches per cut, rather
             than the Python ones: the same operators in the same order, so the same mesh, but
             where two triangulations of a general flip are equally good the compiled one takes
-            that of the polygon started at its smallest vertex.
+            that of the polygon started at its smallest vertex, and where two fans of a vertex
+            are equally large the copy that keeps its number may differ.
     """
 
     def __init__(self, topology: TetTopology, method: str = "paulus", epsilon: float = 0.1,
@@ -424,22 +428,20 @@ class Cutter:
 
     # ---------------------------------------------------------------- paulus
     def _remesh(self, surface: CutSurface, slots: np.ndarray, stats: CutStats) -> None:
+        """Steps 1-6 of a paulus cut (the insertion of steps 3-5 left out for ``snap``), by the
+        compiled operators (:meth:`_cut_compiled`) or the Python ones, which give the same mesh
+        (up to which copy of a vertex keeps its number)."""
         epsilon = np.inf if self.method == "snap" else max(self.epsilon, MIN_SNAP)
         sampling, marked = self.snap(surface, slots, epsilon * self.mean_edge_length, stats)
         if not marked and not sampling.edges:
             return
-        if self.method == "paulus":
-            marked |= self._insert_surface(surface, sampling, stats)
-        self._disconnect(surface, marked, stats)
-
-    def _insert_surface(self, surface: CutSurface, sampling: _Sampling, stats: CutStats) -> set[int]:
-        """Steps 3-5: 1-4 splits, 2-3 flips / face splits, general flips / bisections, by the
-        compiled operators (:meth:`_insert_compiled`) or the Python ones, which give the same
-        mesh. Returns the vertices created on the surface (and split vertices used again)."""
-        plan = self._plan(surface, sampling)
+        plan = self._plan(surface, sampling) if self.method == "paulus" else None
         if self.compiled and not self.topology.unsewn:
-            return self._insert_compiled(surface, sampling, plan, stats)
-        return self._insert_python(surface, sampling, plan, stats)
+            self._cut_compiled(surface, sampling, plan, marked, stats)
+            return
+        if plan is not None:
+            marked |= self._insert_python(surface, sampling, plan, stats)
+        self._disconnect(surface, marked, stats)
 
     def _plan(self, surface: CutSurface, sampling: _Sampling) -> "_Plan":
         """The operators of steps 3-5, in the order they are applied."""
@@ -524,14 +526,44 @@ class Cutter:
             marked.add(m)
         return marked
 
-    def _insert_compiled(self, surface: CutSurface, sampling: _Sampling, plan: "_Plan", stats: CutStats) -> set[int]:
-        """:meth:`_insert_surface` by the compiled operators, in one launch on the cut elements
-        copied into a :class:`TetRegion` and written back (every operator stays inside them:
-        a face or an edge the plan names is one of a crossed element with a crossed edge, and
-        every element around a crossed edge is crossed). A face whose flip is refused gets its
+    def _cut_compiled(self, surface: CutSurface, sampling: _Sampling, plan: "_Plan | None", marked: set[int],
+                      stats: CutStats) -> None:
+        """Steps 3-6 by the compiled operators on one :class:`TetRegion`, written back once:
+        the crossed elements and the elements around the vertices already on the cut. That is
+        everything they touch: each face or edge the plan names belongs to a crossed element
+        with a crossed edge, and every element around a crossed edge is crossed; a face to
+        open has three vertices on the cut, each one already on it or made inside the crossed
+        elements, and every element around them is in the region."""
+        topo = self.topology
+        slots = set(sampling.cut_slots) if plan is not None else set()
+        for v in marked:
+            slots |= topo.vertex_tets[v]
+        region = TetRegion(topo, sorted(slots))
+        on_cut = {region.local_vertex(v) for v in marked}
+        splits: list[int] = []
+        if plan is not None:
+            made_on_cut, splits = self._insert_compiled(region, surface, sampling, plan, stats)
+            on_cut |= made_on_cut
+        arrays = region.arrays
+        first_copy = arrays.vertex_count
+        faces, keys = self._faces_to_open(region, surface, on_cut)
+        copies = arrays.disconnect(faces, sorted({v for key in keys for v in key})) if faces else 0
+        global_of = region.write_back()
+        self.split_vertices.update(global_of[splits].tolist())
+        if copies:
+            new = np.arange(first_copy, first_copy + copies)
+            self.wound_vertices.update(global_of[new].tolist(),
+                                       global_of[arrays.vertex_parents.numpy()[new, 0]].tolist())
+        stats.unsewn_faces += len(faces)
+        stats.duplicated_vertices += copies
+
+    def _insert_compiled(self, region: TetRegion, surface: CutSurface, sampling: _Sampling, plan: "_Plan",
+                         stats: CutStats) -> tuple[set[int], list[int]]:
+        """Steps 3-5 in one launch on ``region``'s arrays. A face whose flip is refused gets its
         split point when the launch reaches it (the launch stops there: the point may cost a
-        query of S), unless S is a plane (computed before, cheaply)."""
-        region = TetRegion(self.topology, sampling.cut_slots)
+        query of S), unless S is a plane (computed before, cheaply). Returns the region's
+        vertices made on the cut (with the split vertices used again) and its new 1-4 split
+        vertices."""
         local = region.local_vertex
         faces = plan.faces
         first_face = len(plan.splits)
@@ -558,17 +590,16 @@ class Cutter:
         results = region.arrays.run(list(kinds), np.array(ints, dtype=np.int32).reshape(-1, 4),
                                     np.array(reals, dtype=np.float64).reshape(-1, 4),
                                     quality_drop=QUALITY_DROP, resolve=face_row, details=True)
-        made = region.write_back()
-        marked = set(plan.reused)
-        for i, (reason, vertex, fallback) in enumerate(results):
-            v = made.get(vertex, -1)
+        on_cut = {local(v) for v in plan.reused}
+        splits = []
+        for i, (reason, v, fallback) in enumerate(results):
             if i < first_face:
                 t, _, real = plan.splits[i]
                 if reason is None:
                     stats.split_elements += 1
-                    self.split_vertices.add(v)
+                    splits.append(v)
                     if real:
-                        marked.add(v)
+                        on_cut.add(v)
                 else:
                     stats.refused.append(f"split 1-4 of element {t}: {reason}")
             elif i < first_face + len(faces):
@@ -578,7 +609,7 @@ class Cutter:
                 elif reason is None:
                     stats.face_splits += 1
                     if points[key][1]:
-                        marked.add(v)
+                        on_cut.add(v)
                 elif fallback:
                     stats.refused.append(f"split of face {key}: {reason}")
             else:
@@ -587,10 +618,36 @@ class Cutter:
                     stats.general_flips += 1
                 elif reason is None:
                     stats.bisections += 1
-                    marked.add(v)
+                    on_cut.add(v)
                 elif fallback:
                     stats.refused.append(f"bisection of edge ({a}, {b}): {reason}")
-        return marked
+        return on_cut, splits
+
+    def _faces_to_open(self, region: TetRegion, surface: CutSurface, on_cut: set[int]) -> tuple[list, np.ndarray]:
+        """:meth:`_disconnect`'s choice of faces on ``region``'s arrays: the interior faces whose
+        three vertices are ``on_cut`` (region vertices) and which lie on the surface, less
+        those that would cut a crumb loose. Returns them as (element, corner opposite) and as
+        sorted vertex triples, in increasing order of the triples."""
+        arrays = region.arrays
+        live = arrays.live_tets()
+        tets, neighbors = arrays.tet_indices.numpy()[live], arrays.tet_neighbors.numpy()[live]
+        marked = np.zeros(arrays.vertex_count, dtype=bool)
+        marked[list(on_cut)] = True
+        corners = marked[tets]
+        # face k has three vertices on the cut; one side of each (every such face is inside the region)
+        rows, ks = np.nonzero((corners.sum(axis=1)[:, None] - corners == 3) & (neighbors > live[:, None]))
+        keys = np.sort(np.take_along_axis(tets[rows], _FACE_CORNERS[ks], axis=1), axis=1)
+        order = np.lexsort(keys.T[::-1])
+        rows, ks, keys = rows[order], ks[order], keys[order]
+        if not len(keys):
+            return [], keys
+        x = (arrays.vertex_rest if self._rest else arrays.vertex_q).numpy()[: arrays.vertex_count]
+        near = self._on_surface(surface, x[keys])
+        rows, ks, keys = rows[near], ks[near], keys[near]
+        faces = list(zip(live[rows].tolist(), neighbors[rows, ks].tolist()))  # (t, n), t < n
+        opened = set(self._keep_attached(faces, _RegionFaces(arrays)))
+        kept = np.array([face in opened for face in faces], dtype=bool)
+        return list(zip(live[rows[kept]].tolist(), ks[kept].tolist())), keys[kept]
 
     def _move_keeps_quality(self, v: int, other: int, s: float) -> bool:
         """Whether moving vertex v to ``(1 - s) v + s other`` (rest configuration) keeps the
@@ -722,6 +779,8 @@ class Cutter:
         whether it is on the cut: the barycentre of its crossings and on-vertices."""
         points = self._crossing_weights(list(key), sampling.edges, sampling.on)
         if len(points) >= 2:  # _mean: np.mean(points, axis=0), without its overhead
+            if type(surface) is Plane:  # a mean of points on a plane is on it: nothing to move
+                return np.array(_mean(points)), True
             return self._onto_surface(surface, self.coordinates()[list(key)], np.array(_mean(points))), True
         if not points:
             return None
@@ -744,13 +803,9 @@ class Cutter:
         keys = [key for key in sorted(faces) if len(topo.face_tets.get(key, ())) == 2]
         opened = []
         if keys:
-            corners = self.coordinates()[np.asarray(keys)]  # (F, 3, 3)
-            centre = corners.mean(axis=1)
-            # a face with three vertices on the cut may still span across it: its centre is off
-            reach = 0.25 * np.linalg.norm(corners - centre[:, None], axis=2).max(axis=1) + self.tolerance
-            near = surface.distance(centre, float(reach.max())) <= reach
+            near = self._on_surface(surface, self.coordinates()[np.asarray(keys)])
             opened = [key for key, ok in zip(keys, near.tolist()) if ok]
-        opened = self._keep_attached(opened)
+        opened = self._keep_attached(opened, _TopologyFaces(topo))
         for key in opened:
             unsew_face(topo, key)
         stats.unsewn_faces += len(opened)
@@ -760,25 +815,27 @@ class Cutter:
             self.wound_vertices.update(copies, (v,))
         sew_unopened(topo)
 
-    def _keep_attached(self, opened: list) -> list:
-        """``opened`` less the faces that would cut a crumb loose (see ``CRUMB_ELEMENTS``): flat
-        elements lying in the surface get all their faces on the cut. The crumb's largest
-        opened face stays sewn, so it stays with the neighbour across it; that bridges
-        nothing, its other faces being open."""
-        topo = self.topology
-        x = topo.rest_positions
+    def _on_surface(self, surface: CutSurface, corners: np.ndarray) -> np.ndarray:
+        """(F,) whether each face, with ``corners`` (F, 3, 3) (m) all on the cut, lies on the
+        surface: a face with three vertices on the cut may still span across it (its centre
+        is off)."""
+        centre = corners.mean(axis=1)
+        reach = 0.25 * np.linalg.norm(corners - centre[:, None], axis=2).max(axis=1) + self.tolerance
+        return surface.distance(centre, float(reach.max())) <= reach
+
+    def _keep_attached(self, opened: list, mesh: "_TopologyFaces | _RegionFaces") -> list:
+        """``opened`` (faces as ``mesh`` names them) less the faces that would cut a crumb
+        loose (see ``CRUMB_ELEMENTS``): flat elements lying in the surface get all their
+        faces on the cut. The crumb's largest opened face stays sewn, so it stays with the
+        neighbour across it; that bridges nothing, its other faces being open."""
         opened_set = set(opened)
         crumb_volume = CRUMB_VOLUME * self.mean_edge_length**3 / (6.0 * np.sqrt(2.0))
-
-        def closed(face):
-            return face in opened_set or face in topo.unsewn or len(topo.face_tets[face]) == 1
-
         sliver_quality = CRUMB_QUALITY * REGULAR_QUALITY
         quality: dict[int, float] = {}
 
         def sliver(t):
-            if t not in quality:  # tet_quality's value (remembered by the topology since the check)
-                quality[t] = topo.quality(t)
+            if t not in quality:
+                quality[t] = mesh.quality(t)
             return quality[t] < sliver_quality
 
         def crumb_from(start):
@@ -786,26 +843,23 @@ class Cutter:
             of small total volume; else None (the search stops at the first good element)."""
             seen, stack = {start}, [start]
             while stack:
-                for face in topo.slot_face_keys[stack.pop()]:
-                    if closed(face):
+                for face, across in mesh.faces(stack.pop()):
+                    if across == -1 or face in opened_set or across in seen:
                         continue
-                    for t in topo.face_tets[face]:
-                        if t not in seen:
-                            if len(seen) == CRUMB_ELEMENTS or not sliver(t):
-                                return None
-                            seen.add(t)
-                            stack.append(t)
-            return seen if sum(topo.rest_volume(t) for t in seen) < crumb_volume else None
+                    if across == OUTSIDE or len(seen) == CRUMB_ELEMENTS or not sliver(across):
+                        return None
+                    seen.add(across)
+                    stack.append(across)
+            return seen if sum(mesh.volume(t) for t in seen) < crumb_volume else None
 
-        for start in sorted({t for key in opened for t in topo.face_tets[key]}):
+        for start in sorted({t for key in opened for t in mesh.owners(key)}):
             crumb = crumb_from(start) if sliver(start) else None
             if crumb is None:
                 continue
-            faces = {face for t in crumb for face in topo.slot_face_keys[t]}
+            faces = {face for t in crumb for face, _ in mesh.faces(t)}
             mine = sorted(f for f in faces if f in opened_set)
             if mine:
-                area = [np.linalg.norm(np.cross(x[f[1]] - x[f[0]], x[f[2]] - x[f[0]])) for f in mine]
-                opened_set.discard(mine[int(np.argmax(area))])
+                opened_set.discard(mine[int(np.argmax([mesh.area(f) for f in mine]))])
         return [key for key in opened if key in opened_set]
 
     # ---------------------------------------------------------------- delete
@@ -822,6 +876,72 @@ class Cutter:
         topo.replace_tets(sorted(doomed), [])
         stats.deleted_elements = len(doomed)
         topo.drop_unused_vertices()
+
+
+class _TopologyFaces:
+    """What :meth:`Cutter._keep_attached` asks of a ``TetTopology``."""
+
+    def __init__(self, topo: TetTopology):
+        self.topo = topo
+
+    def owners(self, key) -> list[int]:
+        return self.topo.face_tets[key]
+
+    def faces(self, t: int) -> list[tuple[tuple[int, int, int], int]]:
+        """Element t's faces (sorted vertex triples) and the element across each: -1 on the
+        boundary or where unsewn, ``OUTSIDE`` (a region's) for an element not looked at."""
+        topo = self.topo
+        out = []
+        for key in topo.slot_face_keys[t]:
+            owners = topo.face_tets[key]
+            across = -1
+            if len(owners) == 2 and key not in topo.unsewn:
+                across = owners[1] if owners[0] == t else owners[0]
+            out.append((key, across))
+        return out
+
+    def quality(self, t: int) -> float:
+        return self.topo.quality(t)  # tet_quality's value, remembered by the topology
+
+    def volume(self, t: int) -> float:
+        return self.topo.rest_volume(t)
+
+    def area(self, key) -> float:
+        return _triangle_area(self.topo.rest_positions, key)
+
+
+class _RegionFaces(_TopologyFaces):
+    """What :meth:`Cutter._keep_attached` asks of a region's :class:`TetArrays`. An interior
+    face is named by its two elements (the smaller slot first): cheaper than its vertices."""
+
+    def __init__(self, arrays):
+        slot_count = arrays.slot_count
+        self.tets = arrays.tet_indices.numpy()[:slot_count]
+        self.neighbors = arrays.tet_neighbors.numpy()[:slot_count].tolist()
+        self.rest = arrays.vertex_rest.numpy()[: arrays.vertex_count]
+        corners = self.rest[self.tets]  # dead slots too: cheaper than picking the live ones
+        self.qualities, self.volumes = tet_qualities(corners).tolist(), tet_volumes(self.rest, self.tets).tolist()
+
+    def owners(self, face) -> tuple[int, int]:
+        return face
+
+    def faces(self, t: int) -> list[tuple[tuple[int, int], int]]:
+        return [((t, n) if t < n else (n, t), n) for n in self.neighbors[t]]
+
+    def quality(self, t: int) -> float:
+        return self.qualities[t]
+
+    def volume(self, t: int) -> float:
+        return self.volumes[t]
+
+    def area(self, face) -> float:
+        key = sorted(set(self.tets[face[0]].tolist()) & set(self.tets[face[1]].tolist()))
+        return _triangle_area(self.rest, key)
+
+
+def _triangle_area(x: np.ndarray, key) -> float:
+    """Twice the area (m^2) of triangle ``key`` of points ``x``."""
+    return float(np.linalg.norm(np.cross(x[key[1]] - x[key[0]], x[key[2]] - x[key[0]])))
 
 
 def _mean(points: list[list[float]]) -> list[float]:

@@ -7,9 +7,10 @@
 - ``check``: the invariants, verified from scratch.
 - ``arrays``: :class:`~wcut.topology.arrays.TetArrays`, the mesh as flat arrays with face
   neighbours, edited by the compiled operators (``wcut.kernels.topology``: 1-4 split, face
-  split, 2-3 flip, general flip, bisection), one launch per batch.
-- ``region``: :class:`~wcut.topology.region.TetRegion`, the elements a cut crosses copied into
-  ``TetArrays`` and written back: the cutter's compiled insertion.
+  split, 2-3 flip, general flip, bisection; unsewing and vertex duplication), one launch
+  per batch.
+- ``region``: :class:`~wcut.topology.region.TetRegion`, the elements a cut touches copied into
+  ``TetArrays`` and written back: the cutter's compiled insertion and disconnection.
 - ``shell``: the operators of quadratic shells that fracture uses (open edges, move nodes,
   split a triangle into four) and their check (thesis 6.2).
 """

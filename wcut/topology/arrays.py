@@ -4,7 +4,8 @@
 compiled operators of ``wcut.kernels.topology`` edit: a batch of operators is one Warp
 launch, run in order by one thread, where ``TetTopology`` pays some 70 us of Python per
 operator (see that module). It holds the 1-4 split, the face split (1-3, 2-6), the 2-3 flip,
-the general flip and the bisection; the cutter runs them on the elements a cut crosses
+the general flip, the bisection, and the disconnection (unsewing faces and duplicating their
+vertices once per fan); the cutter runs them on the elements a cut touches
 (``wcut.topology.region``).
 
 Element slots only grow during a change (an operator's new elements take the slots of the
@@ -122,8 +123,14 @@ class TetArrays:
             capacity = vertex_capacity if name.startswith("vertex") else tet_capacity
             full = np.full((capacity,) + data.shape[1:], self._FILL.get(name, 0), dtype=data.dtype)
             full[: len(data)] = data
-            setattr(self, name, wp.array(full, dtype=dtype, device=self.device))
+            setattr(self, name, self._array(full, dtype))
         self._view = None
+
+    def _array(self, host: np.ndarray, dtype):
+        """A device array of ``host`` (a private numpy array of the matching scalar type): on the
+        CPU it is wrapped, not copied (a launch's inputs are a few hundred rows, where a copy
+        costs as much as the kernel)."""
+        return wp.array(host, dtype=dtype, device=self.device, copy=not self.device.is_cpu)
 
     def _grow(self) -> None:
         """Double both capacities, keeping the content."""
@@ -245,7 +252,7 @@ class TetArrays:
         while first < count:
             status = wp.zeros(count - first, dtype=wp.int32, device=self.device)
             made = wp.zeros(count - first, dtype=wp.vec2i, device=self.device)
-            inputs = [wp.array(a[first:], dtype=t, device=self.device)
+            inputs = [self._array(np.ascontiguousarray(a[first:]), t)
                       for a, t in ((kinds, wp.int32), (ints, wp.vec4i), (reals, wp.vec4d))]
             wp.launch(kernels.run_operators, 1, device=self.device,
                       inputs=[self.view(), *inputs, wp.float64(DEGENERATE_TOL), wp.float64(quality_drop),
@@ -264,6 +271,38 @@ class TetArrays:
         if not details:
             return reasons
         return [(r, int(v), bool(f == 1)) for r, (v, f) in zip(reasons, results.tolist())]
+
+    def disconnect(self, faces, vertices) -> int:
+        """Unsew ``faces`` (K, 2) (element, corner opposite the face; interior faces) and
+        duplicate ``vertices`` in order, each into one copy per fan of elements connected
+        through faces on it that are not unsewn (thesis 5.1.3 and figure 4.8); an unsewn face
+        whose elements still share it afterwards is sewn again, the others become boundary.
+        One launch; the same result as ``unsew_face``, ``duplicate_vertex`` (in that order)
+        and ``sew_unopened`` on a ``TetTopology`` with the same slots. New vertex ``w`` is a
+        copy of ``vertex_parents[w, 0]``. Returns how many copies were made."""
+        faces = self._array(np.array(faces, dtype=np.int32).reshape(-1, 2), wp.vec2i)
+        vertices = self._array(np.array(vertices, dtype=np.int32).reshape(-1), wp.int32)
+        status = wp.zeros(3, dtype=wp.int32, device=self.device)
+        first, copies = 0, 0
+        while True:
+            capacity, rows = len(self.tet_indices), len(vertices)
+            scratch = [wp.zeros(capacity, dtype=wp.vec4i, device=self.device),
+                       wp.full(capacity, -1, dtype=wp.int32, device=self.device),
+                       wp.empty(capacity, dtype=wp.int32, device=self.device),
+                       wp.full(len(self.vertex_rest), -1, dtype=wp.int32, device=self.device),
+                       wp.zeros(rows + 1, dtype=wp.int32, device=self.device),
+                       wp.zeros(rows, dtype=wp.int32, device=self.device),
+                       wp.empty(4 * capacity, dtype=wp.int32, device=self.device)]
+            wp.launch(kernels.disconnect, 1, inputs=[self.view(), faces, vertices, first, *scratch],
+                      outputs=[status], device=self.device)
+            code, first, made = status.numpy().tolist()
+            copies += made
+            if code == kernels.REFUSED_FULL:
+                self._grow()
+                continue
+            if code != kernels.DONE:
+                raise TopologyError(f"disconnect: {REFUSALS[code]}")
+            return copies
 
     def view(self):
         """The arrays as the ``kernels.topology.TetMeshArrays`` struct the kernels take."""

@@ -465,22 +465,33 @@ class TetTopology:
                     removed_base.add(t)
         free = self._free
         free.extend(reversed(removed))
-        slots = []
-        tets = self.tets
-        for i, tet in enumerate(added):
-            if free:
-                t = free.pop()
-            else:
-                t = self._new_slot()  # may grow (reallocate) tets and alive
-                alive, tets = self.alive, self.tets
-            tets[t] = tet
-            alive[t] = True
-            self._link(t, tet)
-            if qualities is not None:
-                quality_of[t] = qualities[i]
-            if journal:
-                origin[t] = origins[i]
-            slots.append(t)
+        reused = min(len(free), len(added))
+        slots = free[len(free) - reused:][::-1]  # popped from the end, as one at a time
+        del free[len(free) - reused:]
+        slots += [self._new_slot() for _ in range(len(added) - reused)]  # may grow tets and alive
+        if slots:
+            self.tets[slots] = added
+            self.alive[slots] = True
+        # _link, inlined: a cut writes back hundreds of elements at once
+        vertex_tets, face_tets, slot_face_keys = self.vertex_tets, self.face_tets, self.slot_face_keys
+        for t, tet in zip(slots, added):
+            s0, s1, s2, s3 = sorted(tet)
+            vertex_tets[s0].add(t)
+            vertex_tets[s1].add(t)
+            vertex_tets[s2].add(t)
+            vertex_tets[s3].add(t)
+            keys = slot_face_keys[t] = (s1, s2, s3), (s0, s2, s3), (s0, s1, s3), (s0, s1, s2)
+            for key in keys:
+                owners = face_tets.get(key)
+                if owners is None:
+                    face_tets[key] = [t]
+                else:
+                    owners.append(t)
+        if qualities is not None:
+            for t, q in zip(slots, qualities):
+                quality_of[t] = q
+        if journal:
+            origin.update(zip(slots, origins))
         return slots
 
     def interpolate(self, parents: list[int], weights) -> np.ndarray:
@@ -513,6 +524,28 @@ class TetTopology:
         if self._journal:
             self._journal.vertex_from(v, parents, weights, origin_tet)
         return v
+
+    def add_vertices(self, parents: list[list[int]], weights: list, data: np.ndarray, origin_tets: list[int]) -> int:
+        """:meth:`add_vertex` for several vertices at once, with their ``data`` (K, 9) given
+        (each row ``interpolate(parents[i], weights[i])``; a parent may be an earlier vertex
+        of the batch). Returns the index of the first."""
+        count = len(data)
+        first = self.vertex_count
+        while first + count > len(self.vertex_data):
+            self.vertex_data = np.concatenate([self.vertex_data, np.zeros_like(self.vertex_data)])
+        self.vertex_data[first: first + count] = data
+        self.vertex_count += count
+        self.vertex_tets.extend(set() for _ in range(count))
+        rest, rest32 = point_tuples(data[:, REST])
+        self.rest_tuples.extend(rest)
+        self.rest_tuples32.extend(rest32)
+        if count:
+            self._bound_rest((float(np.abs(data[:, REST]).max()), 0.0, 0.0))
+        if self._journal:
+            for i in range(count):
+                self._journal.vertex_from(first + i, parents[i], np.asarray(weights[i], dtype=np.float64),
+                                          origin_tets[i])
+        return first
 
     def set_vertex(self, v: int, parents: list[int], weights) -> None:
         """Move vertex v (all attributes) to the barycentric combination of ``parents``."""

@@ -1,12 +1,12 @@
 """A part of a :class:`~wcut.topology.mesh.TetTopology` copied into flat arrays, edited there by
 the compiled operators and written back in one replacement.
 
-The cutter's insertion step (thesis 5.1.1-5.1.2) only touches the elements the surface
-crosses: each face or edge it names belongs to a crossed element, and every element around a
-crossed edge is crossed. So those elements alone go into a :class:`TetArrays` (a few hundred
-rows, whatever the size of the mesh), the operators run there in one launch, and the result
-replaces them in the topology: the cost follows the cut, not the mesh (issue 3's 20k and
-100k-element cut events).
+The cutter's insertion (thesis 5.1.1-5.1.2) only touches the elements the surface crosses:
+each face or edge it names belongs to a crossed element, and every element around a crossed
+edge is crossed; its disconnection (5.1.3) only the elements around the vertices on the cut.
+So those elements alone go into a :class:`TetArrays` (a few hundred rows, whatever the size
+of the mesh), the operators run there, and the result replaces them in the topology: the
+cost follows the cut, not the mesh (issue 3's 20k and 100k-element cut events).
 
 In the arrays a face to an element outside the region has neighbour :data:`OUTSIDE`: the
 operators treat it as neither boundary nor theirs to change (an operator that would need
@@ -62,11 +62,11 @@ class TetRegion:
         """The arrays' slot of element slot t of the topology."""
         return self._local_slot[t]
 
-    def write_back(self) -> dict[int, int]:
+    def write_back(self) -> np.ndarray:
         """Replace, in the topology, the region's elements the operators changed by what they
         made (new vertices with their parents, weights and attributes as computed by the
         operators, new elements with their parents: the change record follows). Returns the
-        topology's index of each new vertex of the arrays."""
+        topology's index of each vertex of the arrays."""
         topo, arrays = self.topo, self.arrays
         vertex_count, slot_count = arrays.counts.numpy().tolist()
         first_vertex, region_count = len(self.vertices), len(self.slots)
@@ -75,19 +75,16 @@ class TetRegion:
         changed = ~alive[:region_count] | np.any(tets[:region_count] != self.tets, axis=1)
         added = np.flatnonzero(alive & np.concatenate([changed, np.ones(slot_count - region_count, dtype=bool)]))
         global_of = np.concatenate([self.vertices, topo.vertex_count + np.arange(vertex_count - first_vertex)])
-        made = {}
         if vertex_count > first_vertex:
             new = slice(first_vertex, vertex_count)
             parents, weights = arrays.vertex_parents.numpy()[new], arrays.vertex_weights.numpy()[new]
             data = np.concatenate([arrays.vertex_rest.numpy()[new], arrays.vertex_q.numpy()[new],
                                    arrays.vertex_qd.numpy()[new]], axis=1)
-            origin = arrays.vertex_origin.numpy()[new]
-            for i in range(vertex_count - first_vertex):
-                k = int(np.count_nonzero(parents[i] >= 0))
-                v = topo.add_vertex(global_of[parents[i, :k]].tolist(), weights[i, :k], origin_tet=int(origin[i]),
-                                    data=data[i])
-                made[first_vertex + i] = v
+            used = parents >= 0  # padded with -1 after the last parent
+            parents = [row[keep].tolist() for row, keep in zip(global_of[np.maximum(parents, 0)], used)]
+            weights = [row[keep] for row, keep in zip(weights, used)]
+            topo.add_vertices(parents, weights, data, arrays.vertex_origin.numpy()[new].tolist())
         if len(added) or changed.any():
             parent = arrays.tet_parent.numpy()[added]
             topo.replace_tets(self.slots[changed].tolist(), global_of[tets[added]].tolist(), parent.tolist())
-        return made
+        return global_of
