@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from wcut.cut import Cutter
 from wcut.cut.surface import Plane
 from wcut.mesh import beam, tet_volumes
-from wcut.topology import TetTopology, check_topology, remove_edge
+from wcut.topology import TetTopology, check_topology, connected_components, remove_edge
 from wcut.topology.region import OUTSIDE, TetRegion
 
 from conftest import element_set
@@ -45,9 +45,10 @@ def test_a_region_marks_faces_to_the_rest_of_the_mesh_and_writes_back_its_splits
        normal=st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)).filter(
            lambda n: np.linalg.norm(n) > 0.1),
        epsilon=st.sampled_from([0.0, 0.1, 0.3]))
-def test_compiled_insertion_equals_the_python_operators(point, normal, epsilon):
-    """A plane cut with the compiled insertion gives the mesh and counts of the Python
-    operators (general flips started as the compiled walk starts them), and a valid mesh."""
+def test_compiled_cut_equals_the_python_operators(point, normal, epsilon):
+    """A plane cut with the compiled insertion and disconnection gives the mesh, counts and
+    pieces of the Python operators (general flips started as the compiled walk starts them),
+    and a valid mesh."""
     import wcut.cut.cutter as cutter_module
 
     mesh = beam(6, 3, 3, size=(0.6, 0.3, 0.3))
@@ -62,7 +63,9 @@ def test_compiled_insertion_equals_the_python_operators(point, normal, epsilon):
             check_topology(topo)
             stats = dataclasses.asdict(result.stats)
             stats["refused"] = len(stats["refused"])
-            results.append((element_set(topo.to_mesh()), stats, result.change.vertex_count_after))
+            cut = topo.to_mesh()
+            results.append((element_set(cut), stats, result.change.vertex_count_after,
+                            len(set(connected_components(cut).tolist()))))
     finally:
         cutter_module.remove_edge = original
     assert results[0] == results[1]

@@ -400,13 +400,19 @@ class Cutter:
         A boundary vertex may slide over a smooth curved boundary (:data:`FEATURE_ANGLE`).
         Returns the vertices moved."""
         x = self.coordinates()
-        moves = []
-        for (a, b), (t, n) in sampling.edges.items():
-            h = (1.0 - t) * x[a] + t * x[b]
-            da, db = abs(float(np.dot(n, x[a] - h))), abs(float(np.dot(n, x[b] - h)))
-            v, s, d = (a, t, da) if da <= db else (b, 1.0 - t, db)
-            if d < threshold:
-                moves.append((d, v, a + b - v, s))
+        if not sampling.edges:
+            return set()
+        ab = np.array(list(sampling.edges))
+        t = np.array([c[0] for c in sampling.edges.values()])
+        normal = np.array([c[1] for c in sampling.edges.values()])
+        xa, xb = x[ab[:, 0]], x[ab[:, 1]]
+        h = (1.0 - t)[:, None] * xa + t[:, None] * xb
+        da = np.abs(np.einsum("ij,ij->i", normal, xa - h))
+        db = np.abs(np.einsum("ij,ij->i", normal, xb - h))
+        near_a = da <= db
+        v, s, d = np.where(near_a, ab[:, 0], ab[:, 1]), np.where(near_a, t, 1.0 - t), np.where(near_a, da, db)
+        close = d < threshold
+        moves = zip(d[close].tolist(), v[close].tolist(), (ab.sum(axis=1) - v)[close].tolist(), s[close].tolist())
         snapped: set[int] = set()
         for _, v, other, s in sorted(moves):
             if v in snapped or other in snapped or v in sampling.on:
