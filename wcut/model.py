@@ -467,7 +467,7 @@ class Model:
         self.particle_mass = _device_array(mass, dtype=float, device=d)
         self.particle_load_mass = _device_array(load_mass, dtype=float, device=d)
         self.particle_fixed = _device_array(fixed_mask, dtype=wp.int32, device=d)
-        self.tet_indices = _device_array(tets.astype(np.int32), dtype=index_type, device=d)
+        self.tet_indices = _device_array(tets, dtype=index_type, device=d)
         self.tet_poses = _device_array(poses, dtype=wp.mat33, device=d)
         self.tet_rest_volume = _device_array(rest_volume, dtype=float, device=d)
         self.tet_stiffness = _device_array(stiffness, dtype=wp.vec2, device=d)

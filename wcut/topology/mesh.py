@@ -465,33 +465,22 @@ class TetTopology:
                     removed_base.add(t)
         free = self._free
         free.extend(reversed(removed))
-        reused = min(len(free), len(added))
-        slots = free[len(free) - reused:][::-1]  # popped from the end, as one at a time
-        del free[len(free) - reused:]
-        slots += [self._new_slot() for _ in range(len(added) - reused)]  # may grow tets and alive
-        if slots:
-            self.tets[slots] = added
-            self.alive[slots] = True
-        # _link, inlined: a cut writes back hundreds of elements at once
-        vertex_tets, face_tets, slot_face_keys = self.vertex_tets, self.face_tets, self.slot_face_keys
-        for t, tet in zip(slots, added):
-            s0, s1, s2, s3 = sorted(tet)
-            vertex_tets[s0].add(t)
-            vertex_tets[s1].add(t)
-            vertex_tets[s2].add(t)
-            vertex_tets[s3].add(t)
-            keys = slot_face_keys[t] = (s1, s2, s3), (s0, s2, s3), (s0, s1, s3), (s0, s1, s2)
-            for key in keys:
-                owners = face_tets.get(key)
-                if owners is None:
-                    face_tets[key] = [t]
-                else:
-                    owners.append(t)
-        if qualities is not None:
-            for t, q in zip(slots, qualities):
-                quality_of[t] = q
-        if journal:
-            origin.update(zip(slots, origins))
+        slots = []
+        tets = self.tets
+        for i, tet in enumerate(added):
+            if free:
+                t = free.pop()
+            else:
+                t = self._new_slot()  # may grow (reallocate) tets and alive
+                alive, tets = self.alive, self.tets
+            tets[t] = tet
+            alive[t] = True
+            self._link(t, tet)
+            if qualities is not None:
+                quality_of[t] = qualities[i]
+            if journal:
+                origin[t] = origins[i]
+            slots.append(t)
         return slots
 
     def interpolate(self, parents: list[int], weights) -> np.ndarray:
