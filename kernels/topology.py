@@ -969,15 +969,12 @@ def disconnect(
     status[0] = DONE
     status[1] = first
     status[2] = 0
-    for i in range(faces.shape[0]):
+    for i in range(faces.shape[0]):  # (the flags are scratch: a refusal leaves the mesh as it was)
         t = faces[i][0]
         k = faces[i][1]
         if not live(m, t) or k < 0 or k > 3 or m.tet_neighbors[t][k] < 0:
             status[0] = REFUSED_INPUT
             return
-    for i in range(faces.shape[0]):
-        t = faces[i][0]
-        k = faces[i][1]
         n = m.tet_neighbors[t][k]
         set_opened(opened, t, k, 1)
         set_opened(opened, n, back_corner(m, n, t), 1)

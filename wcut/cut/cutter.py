@@ -837,12 +837,9 @@ class Cutter:
         opened_set = set(opened)
         crumb_volume = CRUMB_VOLUME * self.mean_edge_length**3 / (6.0 * np.sqrt(2.0))
         sliver_quality = CRUMB_QUALITY * REGULAR_QUALITY
-        quality: dict[int, float] = {}
 
         def sliver(t):
-            if t not in quality:
-                quality[t] = mesh.quality(t)
-            return quality[t] < sliver_quality
+            return mesh.quality(t) < sliver_quality
 
         def crumb_from(start):
             """The elements reachable from ``start`` through sewn faces if they are few slivers
@@ -894,8 +891,8 @@ class _TopologyFaces:
         return self.topo.face_tets[key]
 
     def faces(self, t: int) -> list[tuple[tuple[int, int, int], int]]:
-        """Element t's faces (sorted vertex triples) and the element across each: -1 on the
-        boundary or where unsewn, ``OUTSIDE`` (a region's) for an element not looked at."""
+        """Element t's faces (sorted vertex triples) and the element across each, -1 on the
+        boundary or where unsewn."""
         topo = self.topo
         out = []
         for key in topo.slot_face_keys[t]:
@@ -907,7 +904,7 @@ class _TopologyFaces:
         return out
 
     def quality(self, t: int) -> float:
-        return self.topo.quality(t)  # tet_quality's value, remembered by the topology
+        return self.topo.quality(t)  # remembered by the topology
 
     def volume(self, t: int) -> float:
         return self.topo.rest_volume(t)
@@ -916,9 +913,10 @@ class _TopologyFaces:
         return _triangle_area(self.topo.rest_positions, key)
 
 
-class _RegionFaces(_TopologyFaces):
-    """What :meth:`Cutter._keep_attached` asks of a region's :class:`TetArrays`. An interior
-    face is named by its two elements (the smaller slot first): cheaper than its vertices."""
+class _RegionFaces:
+    """What :meth:`Cutter._keep_attached` asks of a region's :class:`TetArrays` (as
+    :class:`_TopologyFaces`). An interior face is named by its two elements (the smaller slot
+    first): cheaper than its vertices."""
 
     def __init__(self, arrays):
         slot_count = arrays.slot_count
@@ -932,6 +930,8 @@ class _RegionFaces(_TopologyFaces):
         return face
 
     def faces(self, t: int) -> list[tuple[tuple[int, int], int]]:
+        """Element t's faces and the element across each: -1 on the boundary, ``OUTSIDE``
+        for an element outside the region (not looked at)."""
         return [((t, n) if t < n else (n, t), n) for n in self.neighbors[t]]
 
     def quality(self, t: int) -> float:
