@@ -182,7 +182,12 @@ class Attachments:
 def _rest_frames(rest: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``Dm^{-1}`` (M, 3, 3) and rest volumes (M,) of elements (rest positions in metres)."""
     Dm = edge_matrices(rest, tets)
-    return np.linalg.inv(Dm), np.abs(np.linalg.det(Dm)) / 6.0
+    # Closed form: the rows of Dm^{-1} are cross products of Dm's columns over det Dm (a tenth
+    # of np.linalg.inv's time on the few hundred elements of a cut; elements are well shaped).
+    c0, c1, c2 = Dm[:, :, 0], Dm[:, :, 1], Dm[:, :, 2]
+    rows = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=1)
+    det = np.einsum("ij,ij->i", c0, rows[:, 0])
+    return rows / det[:, None, None], np.abs(det) / 6.0
 
 
 def _quadratic_rest_frames(rest: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -258,14 +263,16 @@ def _forces_after(old: np.ndarray, change, touched: np.ndarray) -> np.ndarray:
     return forces
 
 
-def _device_array(host, dtype, device):
+def _device_array(host, dtype, device, fresh: bool = False):
     """A device array of host data (converted to ``dtype``'s scalar type). On the CPU the
     converted copy is wrapped rather than copied again (``wp.array`` converts, then copies):
-    a rebuild uploads every per-element array of the mesh."""
+    a rebuild uploads every per-element array of the mesh. ``fresh``: ``host`` was made for
+    this array alone, so when it has the type already it is wrapped as it is."""
     if not wp.get_device(device).is_cpu:
         return wp.array(host, dtype=dtype, device=device)
     scalar = getattr(dtype, "_wp_scalar_type_", dtype)
-    converted = np.array(host, dtype=np.float32 if scalar is float else wp.dtype_to_numpy(scalar), order="C")
+    scalar = np.float32 if scalar is float else wp.dtype_to_numpy(scalar)
+    converted = np.ascontiguousarray(host, dtype=scalar) if fresh else np.array(host, dtype=scalar, order="C")
     return wp.array(converted, dtype=dtype, device=device, copy=False)
 
 
@@ -293,15 +300,16 @@ class State:
 
     @classmethod
     def of(cls, model: "Model", particle_q: np.ndarray, particle_qd: np.ndarray, particle_f: np.ndarray,
-           tet_rotation: np.ndarray) -> "State":
+           tet_rotation: np.ndarray, fresh: bool = False) -> "State":
         """A State of ``model`` holding these host arrays ((N, 3), (N, 3), (N, 3), (M, 4)),
-        uploaded once (no initial values to overwrite)."""
+        uploaded once (no initial values to overwrite); ``fresh``: made for this state alone
+        (wrapped as they are on the CPU when of the right type)."""
         state = cls.__new__(cls)
         d = model.device
-        state.particle_q = _device_array(particle_q, dtype=wp.vec3, device=d)
-        state.particle_qd = _device_array(particle_qd, dtype=wp.vec3, device=d)
-        state.particle_f = _device_array(particle_f, dtype=wp.vec3, device=d)
-        state.tet_rotation = _device_array(tet_rotation, dtype=wp.quat, device=d)
+        state.particle_q = _device_array(particle_q, wp.vec3, d, fresh)
+        state.particle_qd = _device_array(particle_qd, wp.vec3, d, fresh)
+        state.particle_f = _device_array(particle_f, wp.vec3, d, fresh)
+        state.tet_rotation = _device_array(tet_rotation, wp.quat, d, fresh)
         return state
 
     def clear_forces(self) -> None:
@@ -436,48 +444,62 @@ class Model:
         gets empty tetrahedral arrays."""
         tets = np.zeros((0, 4), dtype=np.int64) if _is_shell(mesh) else mesh.tets
         N, M = len(rest), len(tets)
-        self.mesh = mesh
-        self.tet_order = getattr(mesh, "order", 1)
-        self.particle_count, self.tet_count = N, M
         mu, lam = lame_parameters(E, nu)
-        if self.tet_order == 1:
-            self.tet_rotation_shape = M
+        if getattr(mesh, "order", 1) == 1:
             mass = np.bincount(tets.ravel(), weights=np.repeat(rho * volume / 4.0, 4), minlength=N)
             load_mass = mass
             stiffness = np.stack([volume * mu, volume * lam], axis=-1)
-            rest_volume, index_type = volume, wp.vec4i
+            rest_volume = volume
         else:
-            from .kernels.tet_p2 import vec10i
-
-            self.tet_rotation_shape = (M, 4)
             rest_volume = p2.volumes(rest, tets)
             mass = np.bincount(tets.ravel(), weights=(np.outer(rho * rest_volume, p2.HRZ_FRACTIONS)).ravel(),
                                minlength=N)
             load = volume @ p2.shape_functions(p2.GAUSS_POINTS)  # (M, 10): int N_a dV by the Gauss rule
             load_mass = np.bincount(tets.ravel(), weights=(rho[:, None] * load).ravel(), minlength=N)
             stiffness = volume[:, :, None] * np.stack([mu, lam], axis=-1)[:, None, :]
-            index_type = vec10i
+        self._set_arrays(mesh, rest, tets, mass, load_mass, poses, rest_volume, stiffness, fixed_mask,
+                         (rho, E, nu), attachments)
+
+    def _set_arrays(self, mesh, rest, tets, mass, load_mass, poses, rest_volume, stiffness, fixed_mask, material,
+                    attachments: Attachments, fresh: bool = False) -> None:
+        """Create the device arrays of the model of ``mesh`` from host arrays, the derived ones
+        included (``tets`` its elements, none for a shell; ``material``: density, Young's
+        modulus and Poisson's ratio per element). ``fresh``: the host arrays were made for this
+        model alone (a rebuild's), so on the CPU those of the right type are wrapped rather than
+        copied."""
+        N, M = len(rest), len(tets)
+        self.mesh = mesh
+        self.tet_order = getattr(mesh, "order", 1)
+        self.particle_count, self.tet_count = N, M
+        if self.tet_order == 1:
+            self.tet_rotation_shape, index_type = M, wp.vec4i
+        else:
+            from .kernels.tet_p2 import vec10i
+
+            self.tet_rotation_shape, index_type = (M, 4), vec10i
         rest_points = np.einsum("sj,sjk->sk", attachments.weights, rest[attachments.indices]) \
             if len(attachments) else np.zeros((0, 3))
 
         d = self.device
+
+        def upload(host, dtype, owned=fresh):
+            return _device_array(host, dtype, d, fresh=owned)
+
         self.attachment_count = len(attachments)
-        self.particle_q = _device_array(rest, dtype=wp.vec3, device=d)
+        self.particle_q = upload(rest, wp.vec3)
         self.particle_qd = wp.zeros(N, dtype=wp.vec3, device=d)
-        self.particle_mass = _device_array(mass, dtype=float, device=d)
-        self.particle_load_mass = _device_array(load_mass, dtype=float, device=d)
-        self.particle_fixed = _device_array(fixed_mask, dtype=wp.int32, device=d)
-        self.tet_indices = _device_array(tets, dtype=index_type, device=d)
-        self.tet_poses = _device_array(poses, dtype=wp.mat33, device=d)
-        self.tet_rest_volume = _device_array(rest_volume, dtype=float, device=d)
-        self.tet_stiffness = _device_array(stiffness, dtype=wp.vec2, device=d)
-        self.tet_density = _device_array(rho, dtype=float, device=d)
-        self.tet_youngs_modulus = _device_array(E, dtype=float, device=d)
-        self.tet_poisson_ratio = _device_array(nu, dtype=float, device=d)
-        self.attachment_indices = _device_array(attachments.indices.reshape(-1, 4), dtype=wp.vec4i, device=d)
-        self.attachment_weights = _device_array(attachments.weights.reshape(-1, 4), dtype=wp.vec4, device=d)
-        self.attachment_stiffness = _device_array(attachments.stiffness, dtype=float, device=d)
-        self.attachment_rest_points = _device_array(rest_points, dtype=wp.vec3, device=d)
+        self.particle_mass = upload(mass, float)
+        self.particle_load_mass = upload(load_mass, float, owned=fresh and load_mass is not mass)
+        self.particle_fixed = upload(fixed_mask, wp.int32)
+        self.tet_indices = upload(tets, index_type)
+        self.tet_poses = upload(poses, wp.mat33)
+        self.tet_rest_volume = upload(rest_volume, float)
+        self.tet_stiffness = upload(stiffness, wp.vec2)
+        self.tet_density, self.tet_youngs_modulus, self.tet_poisson_ratio = (upload(a, float) for a in material)
+        self.attachment_indices = upload(attachments.indices.reshape(-1, 4), wp.vec4i, owned=False)
+        self.attachment_weights = upload(attachments.weights.reshape(-1, 4), wp.vec4, owned=False)
+        self.attachment_stiffness = upload(attachments.stiffness, float, owned=False)
+        self.attachment_rest_points = upload(rest_points, wp.vec3)
         self.tri_count = self.edge_count = 0
 
     def _upload_shell(self, mesh, rest, rho, E, nu, thickness, fixed_mask, attachments: Attachments) -> None:
@@ -549,32 +571,71 @@ class Model:
                              f"and {self.tet_count}")
         if change.vertex_count_after != mesh.vertex_count or change.element_count_after != mesh.tet_count:
             raise ModelError("rebuild: the change does not lead to this mesh")
-        parent, changed = change.element_parent, change.element_rest_changed
+        parent = change.element_parent
         reparented, touched = _reparented(parent, self.tet_count), _touched_vertices(change)
         rest = mesh.vertices.astype(np.float32).astype(np.float64)
-        if self.tet_order == 2:  # the Gauss points' volume shares are not kept: all anew (cheap)
-            poses, volume = _quadratic_rest_frames(rest, mesh.tets)
-        else:
-            poses = _take(self.tet_poses.numpy(), parent, reparented)
-            volume = _take(self.tet_rest_volume.numpy(), parent, reparented).astype(np.float64)
-            if changed.any():
-                poses[changed], volume[changed] = _rest_frames(rest, mesh.tets[changed])
-        rho, E, nu = (_take(a.numpy(), parent, reparented).astype(np.float64)
-                      for a in (self.tet_density, self.tet_youngs_modulus, self.tet_poisson_ratio))
-        fixed_mask = self._fixed_after(change, touched)
-
+        fixed_mask, attachments = self._fixed_after(change, touched), self._attachments_after(change)
         model = Model.__new__(Model)
         model.device = self.device
         model.rayleigh_mass, model.rayleigh_stiffness, model.gravity = \
             self.rayleigh_mass, self.rayleigh_stiffness, self.gravity
-        model._upload(mesh, rest, poses, volume, rho, E, nu, fixed_mask,
-                      self._attachments_after(change))
+        material = [_take(a.numpy(), parent, reparented)
+                    for a in (self.tet_density, self.tet_youngs_modulus, self.tet_poisson_ratio)]
+        if self.tet_order == 2:  # the Gauss points' volume shares are not kept: all anew (cheap)
+            poses, volume = _quadratic_rest_frames(rest, mesh.tets)
+            model._upload(mesh, rest, poses, volume, *(a.astype(np.float64) for a in material), fixed_mask,
+                          attachments)
+        else:
+            tets, mass, poses, volume, stiffness = self._linear_rest_after(mesh, rest, change, reparented, touched,
+                                                                           material)
+            model._set_arrays(mesh, rest, tets, mass, mass, poses, volume, stiffness, fixed_mask, material,
+                              attachments, fresh=True)
         if state is None:
             return model, None
         return model, State.of(model, _interpolated(state.particle_q.numpy(), change, touched),
                                _interpolated(state.particle_qd.numpy(), change, touched),
                                _forces_after(state.particle_f.numpy(), change, touched),
-                               _take(state.tet_rotation.numpy(), parent, reparented))
+                               _take(state.tet_rotation.numpy(), parent, reparented), fresh=True)
+
+    def _linear_rest_after(self, mesh, rest, change, reparented, touched, material):
+        """Element indices (M, 4) int32, masses (N,), ``Dm^{-1}`` (M, 3, 3), volumes (M,) and
+        stiffness (M, 2) of the linear
+        model of ``mesh`` after ``change`` (float32, as uploaded; ``material`` the elements'
+        density, Young's modulus and Poisson's ratio).
+
+        An element keeps the rows of its parent unless its rest shape changed; only those are
+        computed. A vertex keeps its mass unless one of its elements changed (in shape, parent or
+        vertices, before or after): those masses are summed again, over all their elements in
+        element order, as ``Model`` sums them."""
+        parent, changed = change.element_parent, np.flatnonzero(change.element_rest_changed)
+        tets, old_tets = np.ascontiguousarray(mesh.tets, dtype=np.int32), self.tet_indices.numpy()
+        poses = _take(self.tet_poses.numpy(), parent, reparented)
+        volume = _take(self.tet_rest_volume.numpy(), parent, reparented)
+        stiffness = _take(self.tet_stiffness.numpy(), parent, reparented)
+        new_poses, new_volume = _rest_frames(rest, tets[changed])
+        poses[changed], volume[changed] = new_poses, new_volume
+        mu, lam = lame_parameters(material[1][changed], material[2][changed])
+        stiffness[changed] = np.stack([new_volume * mu, new_volume * lam], axis=-1)
+
+        N, M, M_before = len(rest), len(tets), len(old_tets)
+        k = min(M, M_before)
+        old_pairs, pairs = old_tets[:k].view(np.int64), tets[:k].view(np.int64)  # a row as two int64
+        differ = (old_pairs[:, 0] != pairs[:, 0]) | (old_pairs[:, 1] != pairs[:, 1])
+        rows = np.union1d(np.flatnonzero(differ), np.concatenate([reparented, changed]))
+        renewed = np.zeros(N, dtype=bool)  # vertices whose mass is summed again
+        for old_vertices in (old_tets[rows[rows < M_before]], old_tets[M:]):
+            old_vertices = old_vertices.ravel()
+            renewed[old_vertices[old_vertices < N]] = True
+        renewed[tets[rows].ravel()] = True
+        renewed[touched] = True
+        renewed[change.vertex_count_before:] = True
+        around = np.flatnonzero(np.take(renewed, tets.ravel()).view(np.int32))  # four bools as one int32
+        around_volume = volume[around].astype(np.float64)
+        around_volume[np.searchsorted(around, changed)] = new_volume  # summed unrounded, as Model does
+        shares = material[0][around].astype(np.float64) * around_volume / 4.0
+        mass = _prefix(self.particle_mass.numpy(), N)
+        mass[renewed] = np.bincount(tets[around].ravel(), weights=np.repeat(shares, 4), minlength=N)[renewed]
+        return tets, mass, poses, volume, stiffness
 
     def _rebuild_shell(self, mesh, change, state: State | None) -> tuple["Model", State | None]:
         """:meth:`rebuild` of a shell: every triangle takes its parent's material and thickness,
