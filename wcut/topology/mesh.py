@@ -514,26 +514,26 @@ class TetTopology:
             self._journal.vertex_from(v, parents, weights, origin_tet)
         return v
 
-    def add_vertices(self, parents: list[list[int]], weights: list, data: np.ndarray, origin_tets: list[int]) -> int:
+    def add_vertices(self, parents: np.ndarray, weights: np.ndarray, data: np.ndarray, origin_tets) -> int:
         """:meth:`add_vertex` for several vertices at once, with their ``data`` (K, 9) given
-        (each row ``interpolate(parents[i], weights[i])``; a parent may be an earlier vertex
-        of the batch). Returns the index of the first."""
+        (each row ``interpolate(parents[i], weights[i])``): ``parents`` (K, P) vertices, -1
+        where a row has fewer, a parent possibly an earlier vertex of the batch, ``weights``
+        (K, P). Returns the index of the first."""
         count = len(data)
         first = self.vertex_count
         while first + count > len(self.vertex_data):
             self.vertex_data = np.concatenate([self.vertex_data, np.zeros_like(self.vertex_data)])
         self.vertex_data[first: first + count] = data
         self.vertex_count += count
-        self.vertex_tets.extend(set() for _ in range(count))
+        self.vertex_tets.extend([set() for _ in range(count)])
         rest, rest32 = point_tuples(data[:, REST])
         self.rest_tuples.extend(rest)
         self.rest_tuples32.extend(rest32)
         if count:
             self._bound_rest((float(np.abs(data[:, REST]).max()), 0.0, 0.0))
         if self._journal:
-            for i in range(count):
-                self._journal.vertex_from(first + i, parents[i], np.asarray(weights[i], dtype=np.float64),
-                                          origin_tets[i])
+            self._journal.vertices_from(first, np.asarray(parents).tolist(),
+                                        np.asarray(weights, dtype=np.float64).tolist(), list(origin_tets))
         return first
 
     def set_vertex(self, v: int, parents: list[int], weights) -> None:
@@ -708,6 +708,29 @@ class _Journal:
         around = self.topo.vertex_tets[v]
         if around:  # a moved vertex reshapes its elements (a new one has none yet)
             self.reshaped.update(around)
+
+    def vertices_from(self, first: int, parents: list, weights: list, origin_tets: list) -> None:
+        """:meth:`vertex_from` of new vertices ``first``, ``first + 1``, ... (without elements
+        yet): one row of ``parents`` and ``weights`` each (lists; a parent -1 is none)."""
+        expression, origin, vertex_origin = self.expression, self.origin, self.vertex_origin
+        for v, (row, row_weights, origin_tet) in enumerate(zip(parents, weights, origin_tets), start=first):
+            if row_weights[0] == 1.0 and (len(row) == 1 or row[1] < 0):  # a copy: its original's expression
+                of_p = expression.get(row[0])
+                expr = {row[0]: 1.0} if of_p is None else dict(of_p)
+            else:
+                expr = {}
+                for p, w in zip(row, row_weights):
+                    if p < 0 or w == 0.0:
+                        continue
+                    of_p = expression.get(p)
+                    if of_p is None:
+                        expr[p] = expr.get(p, 0.0) + w
+                    else:
+                        for q, wq in of_p.items():
+                            expr[q] = expr.get(q, 0.0) + w * wq
+            expression[v] = expr
+            if origin_tet >= 0:
+                vertex_origin[v] = origin.get(origin_tet, origin_tet)
 
 
 def _closest_on_triangles(p, a, b, c) -> tuple[np.ndarray, np.ndarray]:

@@ -80,9 +80,7 @@ class TetRegion:
             parents, weights = arrays.vertex_parents.numpy()[new], arrays.vertex_weights.numpy()[new]
             data = np.concatenate([arrays.vertex_rest.numpy()[new], arrays.vertex_q.numpy()[new],
                                    arrays.vertex_qd.numpy()[new]], axis=1)
-            used = parents >= 0  # padded with -1 after the last parent
-            parents = [row[keep].tolist() for row, keep in zip(global_of[np.maximum(parents, 0)], used)]
-            weights = [row[keep] for row, keep in zip(weights, used)]
+            parents = np.where(parents >= 0, global_of[np.maximum(parents, 0)], -1)  # -1 after the last parent
             topo.add_vertices(parents, weights, data, arrays.vertex_origin.numpy()[new].tolist())
         if len(added) or changed.any():
             parent = arrays.tet_parent.numpy()[added]
