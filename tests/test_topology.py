@@ -734,6 +734,43 @@ def test_random_operator_sequences_keep_the_mesh_valid(data):
     check_change(topo.end_change(), before, topo, parents=False)
 
 
+class _FacesLinkedLater(TetTopology):
+    """A topology whose every replacement leaves its faces to be linked when next read."""
+
+    def replace_tets(self, removed, added, parents=None, qualities=None, *, link_faces=True):
+        return super().replace_tets(removed, added, parents, qualities, link_faces=False)
+
+
+@settings(max_examples=30, **FAST)
+@given(data=st.data())
+def test_faces_linked_later_equal_faces_linked_at_once(data):
+    """``replace_tets(link_faces=False)`` (the compiled cutter's write-back) must leave, once the
+    faces are read, exactly the adjacency that linking at once leaves: the same owners in the
+    same order (later operators' choices follow it), the same face keys, the same vertex stars
+    in the same iteration order, after any sequence of operators, some of which read the faces
+    (and so link them) and some of which do not (so several replacements wait together)."""
+    at_once = topology("beam")
+    mesh = MESHES["beam"]()
+    later = _FacesLinkedLater(mesh, positions=at_once.positions.copy(), velocities=at_once.velocities.copy())
+    for _ in range(data.draw(st.integers(3, 12))):
+        operator, args = _random_operation(at_once, data)
+        outcomes = []
+        for topo in (at_once, later):
+            try:
+                operator(topo, *args)
+                outcomes.append(None)
+            except TopologyError as exc:
+                outcomes.append(str(exc))
+        assert outcomes[0] == outcomes[1]
+        assert [list(s) for s in later.vertex_tets] == [list(s) for s in at_once.vertex_tets]
+        assert np.array_equal(later.tets[: later.slot_count], at_once.tets[: at_once.slot_count])
+    assert list(later.face_tets.items()) == list(at_once.face_tets.items())
+    live = at_once.live_tets()
+    assert [later.slot_face_keys[t] for t in live] == [at_once.slot_face_keys[t] for t in live]
+    assert later.unsewn == at_once.unsewn
+    check_topology(later)
+
+
 @settings(max_examples=60, **FAST)
 @given(data=st.data())
 def test_splits_near_element_boundaries_succeed_or_refuse_cleanly(data):

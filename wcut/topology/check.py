@@ -19,7 +19,7 @@ def check_topology(topo: TetTopology, volume: float | None = None, volume_tolera
 
     - every live element well shaped and positively oriented (rest configuration);
     - ``vertex_tets``, ``face_tets`` and ``slot_face_keys`` equal to the adjacency rebuilt from
-      the elements;
+      the elements (reading the faces links those a compiled write-back left for later);
     - every face in one or two elements, unsewn faces interior;
     - the boundary closed: each directed boundary edge matched by its reverse;
     - when ``volume`` is given, total rest volume equal to it (relative ``volume_tolerance``).

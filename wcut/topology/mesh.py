@@ -8,6 +8,13 @@ every change, the adjacency the operators need:
 - from these, the ordered ring of tetrahedra around an edge (:meth:`edge_ring`) and the
   boundary faces.
 
+The face adjacency may lag: a replacement written back from the compiled operators
+(``replace_tets(link_faces=False)``) updates the vertex stars at once and leaves its faces to
+be linked the first time ``face_tets`` or ``slot_face_keys`` is read, exactly as linking then
+would have. The compiled cutter's own queries (boundary tests, the faces of a region) count a
+face's elements from the vertex stars (:meth:`TetTopology.face_owner_count`), so a cut event
+does not pay for dictionary work only the Python operators need.
+
 A face can be *unsewn* (thesis 5.1.3, the combinatorial map's volume binding deleted): its
 two tetrahedra still share the three vertices but no longer count as connected through it
 when a vertex is split into one copy per connected fan (:meth:`duplicate_vertex`).
@@ -162,10 +169,12 @@ class TetTopology:
         self.slot_count = m
         self._free: list[int] = []
         self.vertex_tets: list[set[int]] = [set() for _ in range(n)]
-        self.face_tets: dict[tuple[int, int, int], list[int]] = {}
+        self._face_tets: dict[tuple[int, int, int], list[int]] = {}
         #: per slot, the keys of its element's four faces (:func:`_face_keys`): kept by
         #: ``_link`` so that unlinking and the adjacency walks never sort vertices again
-        self.slot_face_keys: list[tuple | None] = [None] * len(self.tets)
+        self._slot_face_keys: list[tuple | None] = [None] * len(self.tets)
+        #: replacements whose faces are not linked yet: (removed slots, [(slot, vertices)])
+        self._unlinked_faces: list[tuple[list[int], list[tuple[int, list[int]]]]] = []
         #: per slot, the element's float64 rest quality (:func:`tet_quality` of its vertices in
         #: slot order) once computed, else None: see :meth:`quality`
         self._slot_quality: list[float | None] = [None] * len(self.tets)
@@ -180,6 +189,27 @@ class TetTopology:
     def tet_count(self) -> int:
         """Number of live elements."""
         return self.slot_count - len(self._free)
+
+    @property
+    def face_tets(self) -> dict[tuple[int, int, int], list[int]]:
+        """The elements of each face (key: sorted vertex triple), in the order they were
+        linked (read it, never write it)."""
+        if self._unlinked_faces:
+            self._link_faces()
+        return self._face_tets
+
+    @property
+    def slot_face_keys(self) -> list:
+        """Per slot, the keys of its element's four faces (read them, never write them)."""
+        if self._unlinked_faces:
+            self._link_faces()
+        return self._slot_face_keys
+
+    def face_owner_count(self, a: int, b: int, c: int) -> int:
+        """How many elements have face (a, b, c): 1 on the boundary, 2 inside (unsewn or not),
+        0 for no face. From the vertex stars, so it never waits for the face adjacency."""
+        vertex_tets = self.vertex_tets
+        return len(vertex_tets[a] & vertex_tets[b] & vertex_tets[c])
 
     def live_tets(self) -> np.ndarray:
         """Slots of the live elements, ascending (the order of :meth:`to_mesh`)."""
@@ -231,7 +261,7 @@ class TetTopology:
         return [s for s in self.face_tets[key] if s != t]
 
     def is_boundary_face(self, key) -> bool:
-        return len(self.face_tets.get(key, ())) == 1
+        return self.face_owner_count(*key) == 1
 
     def boundary_faces(self) -> np.ndarray:
         """(F, 3) boundary triangles, outward oriented (faces of a single element)."""
@@ -240,7 +270,7 @@ class TetTopology:
             tet = self.tets[t]
             for local in TET_FACES:
                 tri = tet[local]
-                if len(self.face_tets[face_key(*tri.tolist())]) == 1:
+                if self.face_owner_count(*tri.tolist()) == 1:
                     out.append(tri)
         return np.array(out, dtype=np.int64).reshape(-1, 3)
 
@@ -317,7 +347,7 @@ class TetTopology:
 
     def is_boundary_edge(self, a: int, b: int) -> bool:
         """Whether edge (a, b) lies on a boundary face (unsewn faces are not counted)."""
-        return any(len(self.face_tets[face_key(a, b, c)]) == 1
+        return any(self.face_owner_count(a, b, c) == 1
                    for t in self.edge_tets(a, b) for c in self.tets[t].tolist() if c != a and c != b)
 
     def is_boundary_vertex(self, v: int) -> bool:
@@ -325,7 +355,7 @@ class TetTopology:
             tet = self.tets[t]
             for local in TET_FACES:
                 tri = tet[local].tolist()
-                if v in tri and len(self.face_tets[face_key(*tri)]) == 1:
+                if v in tri and self.face_owner_count(*tri) == 1:
                     return True
         return False
 
@@ -368,7 +398,7 @@ class TetTopology:
             tet = self.tets[t]
             for local in TET_FACES:
                 tri = tet[local]
-                if len(self.face_tets[face_key(*tri.tolist())]) == 1:
+                if self.face_owner_count(*tri.tolist()) == 1:
                     faces.append(tri)
                     owners.append(t)
         faces = np.array(faces, dtype=np.int64).reshape(-1, 3)
@@ -396,10 +426,10 @@ class TetTopology:
     def _link(self, t: int, tet: list[int]) -> None:
         """Enter element t, with vertices ``tet``, in the adjacency (t last in the element
         list of each of its faces) and remember its face keys."""
-        vertex_tets, face_tets = self.vertex_tets, self.face_tets
+        vertex_tets, face_tets = self.vertex_tets, self._face_tets
         for v in tet:
             vertex_tets[v].add(t)
-        keys = self.slot_face_keys[t] = _face_keys(tet)
+        keys = self._slot_face_keys[t] = _face_keys(tet)
         for key in keys:
             owners = face_tets.get(key)
             if owners is None:
@@ -410,8 +440,8 @@ class TetTopology:
     def _unlink(self, t: int) -> None:
         """Remove element t from the adjacency (its vertices read from its face keys); a face
         left with fewer than two elements is no longer unsewn."""
-        vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn
-        keys = self.slot_face_keys[t]
+        vertex_tets, face_tets, unsewn = self.vertex_tets, self._face_tets, self.unsewn
+        keys = self._slot_face_keys[t]
         first = keys[0]  # the three largest vertices; the smallest opens the second key
         vertex_tets[keys[1][0]].discard(t)
         vertex_tets[first[0]].discard(t)
@@ -432,13 +462,13 @@ class TetTopology:
         if self.slot_count == len(self.tets):
             self.tets = np.concatenate([self.tets, np.zeros_like(self.tets)])
             self.alive = np.concatenate([self.alive, np.zeros_like(self.alive)])
-            self.slot_face_keys.extend([None] * (len(self.tets) - len(self.slot_face_keys)))
+            self._slot_face_keys.extend([None] * (len(self.tets) - len(self._slot_face_keys)))
             self._slot_quality.extend([None] * (len(self.tets) - len(self._slot_quality)))
         self.slot_count += 1
         return self.slot_count - 1
 
     def replace_tets(self, removed: list[int], added: list[list[int]], parents: list[int] | None = None,
-                     qualities: list[float] | None = None) -> list[int]:
+                     qualities: list[float] | None = None, *, link_faces: bool = True) -> list[int]:
         """Replace elements ``removed`` by ``added`` (vertex lists, positively oriented).
 
         The primitive every operator ends with; it checks nothing, the operators check first.
@@ -446,16 +476,29 @@ class TetTopology:
         origin in the journal it inherits. ``qualities``, when given, are the new elements'
         :func:`tet_quality` (the operator computed them to check them), remembered for
         :meth:`quality`.
+
+        ``link_faces=False`` (a write-back of the compiled operators, whose own queries use the
+        vertex stars) leaves the face adjacency (``face_tets``, ``slot_face_keys``) to be
+        brought up to date when it is next read, exactly as linking now would have left it;
+        the vertex stars are up to date at once. Only while no face is unsewn (linking can
+        then not change ``unsewn``).
         """
         journal = self._journal
         parents = parents or [removed[0]] * len(added)
-        quality_of, alive = self._slot_quality, self.alive
+        quality_of, alive, vertex_tets, tets = self._slot_quality, self.alive, self.vertex_tets, self.tets
+        later = not link_faces and not self.unsewn
+        if not later and self._unlinked_faces:
+            self._link_faces()
         if journal:
             origin = journal.origin
             origins = [origin.get(t, t) for t in parents]
             removed_base = journal.removed_base
         for t in removed:
-            self._unlink(t)
+            if later:
+                for v in tets[t].tolist():
+                    vertex_tets[v].discard(t)
+            else:
+                self._unlink(t)
             alive[t] = False
             quality_of[t] = None
             if journal:
@@ -466,7 +509,6 @@ class TetTopology:
         free = self._free
         free.extend(reversed(removed))
         slots = []
-        tets = self.tets
         for i, tet in enumerate(added):
             if free:
                 t = free.pop()
@@ -475,13 +517,41 @@ class TetTopology:
                 alive, tets = self.alive, self.tets
             tets[t] = tet
             alive[t] = True
-            self._link(t, tet)
+            if later:
+                for v in tet:
+                    vertex_tets[v].add(t)
+            else:
+                self._link(t, tet)
             if qualities is not None:
                 quality_of[t] = qualities[i]
             if journal:
                 origin[t] = origins[i]
             slots.append(t)
+        if later:
+            self._unlinked_faces.append((list(removed), list(zip(slots, added))))
         return slots
+
+    def _link_faces(self) -> None:
+        """Bring the face adjacency up to date with the replacements made with
+        ``link_faces=False``, in order: what :meth:`_unlink` and :meth:`_link` would have done
+        to the faces then (the vertex stars were done at once)."""
+        face_tets, slot_face_keys = self._face_tets, self._slot_face_keys
+        batches, self._unlinked_faces = self._unlinked_faces, []
+        for removed, added in batches:
+            for t in removed:
+                for key in slot_face_keys[t]:
+                    owners = face_tets[key]
+                    owners.remove(t)
+                    if not owners:
+                        del face_tets[key]
+            for t, tet in added:
+                keys = slot_face_keys[t] = _face_keys(tet)
+                for key in keys:
+                    owners = face_tets.get(key)
+                    if owners is None:
+                        face_tets[key] = [t]
+                    else:
+                        owners.append(t)
 
     def interpolate(self, parents: list[int], weights) -> np.ndarray:
         """The barycentric combination of the attributes (a ``vertex_data`` row: rest
@@ -584,7 +654,7 @@ class TetTopology:
         # sets of its vertices; t moves to the end of its faces without ``old``; its faces
         # with ``old`` go (no longer unsewn), those with ``new`` come.
         tet = self.tets[t].tolist()
-        vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn
+        vertex_tets, face_tets, unsewn = self.vertex_tets, self.face_tets, self.unsewn  # faces linked first
         for v in tet:
             vertex_tets[v].discard(t)
         i = tet.index(old)
@@ -592,7 +662,7 @@ class TetTopology:
         self.tets[t, i] = new
         for v in tet:
             vertex_tets[v].add(t)
-        for key in self.slot_face_keys[t]:
+        for key in self._slot_face_keys[t]:
             owners = face_tets[key]
             if old in key:
                 owners.remove(t)
@@ -601,7 +671,7 @@ class TetTopology:
                 unsewn.discard(key)
             elif len(owners) == 2 and owners[0] == t:
                 owners[0], owners[1] = owners[1], t
-        keys = self.slot_face_keys[t] = _face_keys(tet)
+        keys = self._slot_face_keys[t] = _face_keys(tet)
         for key in keys:
             if new in key:
                 owners = face_tets.get(key)
@@ -622,6 +692,8 @@ class TetTopology:
             return 0
         if self._journal and self._journal.expression:
             raise TopologyError("cannot drop vertices after creating or moving some in the same change")
+        if self._unlinked_faces:  # linked with the old numbering first
+            self._link_faces()
         remap = np.cumsum(keep) - 1
         kept = np.flatnonzero(keep)
         live = self.live_tets()
@@ -632,9 +704,9 @@ class TetTopology:
         self.vertex_tets = [self.vertex_tets[v] for v in order]
         self.rest_tuples = [self.rest_tuples[v] for v in order]
         self.rest_tuples32 = [self.rest_tuples32[v] for v in order]
-        self.face_tets = {face_key(*remap[list(k)].tolist()): owners for k, owners in self.face_tets.items()}
+        self._face_tets = {face_key(*remap[list(k)].tolist()): owners for k, owners in self.face_tets.items()}
         for t, tet in zip(live.tolist(), self.tets[live].tolist()):
-            self.slot_face_keys[t] = _face_keys(tet)
+            self._slot_face_keys[t] = _face_keys(tet)
         self.unsewn = {face_key(*remap[list(k)].tolist()) for k in self.unsewn}
         if self._journal:
             self._journal.vertex_renumber = kept if self._journal.vertex_renumber is None \

@@ -484,7 +484,7 @@ def _boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
         tet = topo.tet(t)
         for i, j, k in _FACES:
             tri = (tet[i], tet[j], tet[k])
-            if v in tri and len(topo.face_tets[face_key(*tri)]) == 1:
+            if v in tri and topo.face_owner_count(*tri) == 1:
                 normals.append(_unit_normal(rest[tri[0]], rest[tri[1]], rest[tri[2]]))
     return np.array(normals).reshape(-1, 3)
 

@@ -43,10 +43,11 @@ class TetRegion:
         self.vertices = np.unique(tets)
         self.tets = np.searchsorted(self.vertices, tets).astype(np.int32)
         neighbors = face_neighbors(self.tets)
+        unsewn = topo.unsewn
         for r, k in np.argwhere(neighbors < 0).tolist():
             corners = tets[r].tolist()
-            key = face_key(*(corners[:k] + corners[k + 1:]))
-            if len(topo.face_tets[key]) == 2 and key not in topo.unsewn:
+            face = corners[:k] + corners[k + 1:]
+            if topo.face_owner_count(*face) == 2 and not (unsewn and face_key(*face) in unsewn):
                 neighbors[r, k] = OUTSIDE
         data = topo.vertex_data[self.vertices]
         self.arrays = TetArrays.from_arrays(self.tets, neighbors, self.slots, data[:, REST], data[:, POSITION],
@@ -84,5 +85,6 @@ class TetRegion:
             topo.add_vertices(parents, weights, data, arrays.vertex_origin.numpy()[new].tolist())
         if len(added) or changed.any():
             parent = arrays.tet_parent.numpy()[added]
-            topo.replace_tets(self.slots[changed].tolist(), global_of[tets[added]].tolist(), parent.tolist())
+            topo.replace_tets(self.slots[changed].tolist(), global_of[tets[added]].tolist(), parent.tolist(),
+                              link_faces=False)  # the cutter's next queries use the vertex stars
         return global_of
