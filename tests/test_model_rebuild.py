@@ -94,3 +94,52 @@ def test_rebuild_keeps_what_a_fresh_model_of_the_new_mesh_computes(clamped):
     for name in ("particle_mass", "particle_load_mass", "tet_rest_volume", "tet_stiffness"):
         assert np.allclose(getattr(rebuilt, name).numpy(), getattr(fresh, name).numpy(), rtol=1e-6, atol=0), name
     assert np.allclose(rebuilt.tet_poses.numpy(), fresh.tet_poses.numpy(), rtol=1e-5, atol=1e-3)
+
+
+MODEL_ARRAYS = ("particle_q", "particle_qd", "particle_mass", "particle_load_mass", "particle_fixed", "tet_indices",
+                "tet_poses", "tet_rest_volume", "tet_stiffness", "tet_density", "tet_youngs_modulus",
+                "tet_poisson_ratio", "attachment_indices", "attachment_weights", "attachment_stiffness",
+                "attachment_rest_points")
+STATE_ARRAYS = ("particle_q", "particle_qd", "particle_f", "tet_rotation")
+
+
+def test_rebuild_in_place_equals_rebuild_by_copies(clamped):
+    """``rebuild(in_place=True)`` writes the rows a cut changes into the model's and state's own
+    buffers (their spare rows take what the cut adds) and must give, bit for bit, what the
+    copying rebuild gives, over successive cuts, including one that outgrows the spare rows."""
+    from wcut.model import Attachments
+
+    mesh, ends = clamped
+    rng = np.random.default_rng(3)
+    make = dict(fixed=ends, density=rng.uniform(500.0, 2000.0, mesh.tet_count),
+                attachments=Attachments.at_vertices([40, 41], 10.0))
+    copied, in_place = Model(mesh, **make), Model(mesh, **make)
+    states = []
+    for model in (copied, in_place):
+        state = model.state()
+        state.particle_q.assign(state.particle_q.numpy() + rng.normal(0.0, 1e-3, (model.particle_count, 3)))
+        state.particle_qd.assign(rng.normal(0.0, 1e-2, (model.particle_count, 3)))
+        state.particle_f.assign(rng.normal(0.0, 1.0, (model.particle_count, 3)))
+        states.append(state)
+    copied_state, in_place_state = states
+    in_place_state.particle_q.assign(copied_state.particle_q)
+    in_place_state.particle_qd.assign(copied_state.particle_qd)
+    in_place_state.particle_f.assign(copied_state.particle_f)
+    topo = TetTopology(mesh, positions=copied_state.particle_q.numpy(), velocities=copied_state.particle_qd.numpy())
+    cutter, deleter = Cutter(topo, epsilon=0.2), Cutter(topo, method="delete")
+    cuts = [(cutter, Plane([0.13, 0.0, 0.0], [1.0, 0.1, 0.2])), (cutter, Plane([0.27, 0.0, 0.0], [1.0, -0.3, 0.1])),
+            (deleter, Plane([0.05, 0.0, 0.0], [1.0, 0.0, 0.0])),  # drops vertices: the others are renumbered
+            (cutter, Plane([0.2, 0.05, 0.0], [0.1, 1.0, 0.3]))]
+    reused = []
+    for method, plane in cuts:
+        change = method.cut(plane).change
+        after = topo.to_mesh()
+        buffer = in_place._buffers["tet_poses"]
+        copied, copied_state = copied.rebuild(after, change, copied_state)
+        in_place, in_place_state = in_place.rebuild(after, change, in_place_state, in_place=True)
+        reused.append(in_place._buffers["tet_poses"] is buffer)
+        for name in MODEL_ARRAYS:
+            assert np.array_equal(getattr(in_place, name).numpy(), getattr(copied, name).numpy()), name
+        for name in STATE_ARRAYS:
+            assert np.array_equal(getattr(in_place_state, name).numpy(), getattr(copied_state, name).numpy()), name
+    assert reused[0] and not all(reused)  # in place while the spare rows last, then a new buffer

@@ -206,23 +206,40 @@ def _untouched_vertices(change) -> np.ndarray:
 
 
 # A change is local: most elements and vertices keep their index, and all that is attached to
-# it. Model.rebuild copies the prefix of each array and recomputes only the rows that may
-# differ, which gives, bit for bit, what recomputing every row gives.
+# it. Model.rebuild keeps the rows of each array and recomputes only those that may differ,
+# which gives, bit for bit, what recomputing every row gives. On the CPU each array is the
+# start of a numpy buffer with spare rows, so a rebuild can also write them in place.
 
-def _prefix(old: np.ndarray, count: int) -> np.ndarray:
-    """A new array of ``count`` rows whose first rows are those of ``old`` (the rest, past
-    the end of ``old``, uninitialised: the caller fills them)."""
-    out = np.empty((count,) + old.shape[1:], dtype=old.dtype)
-    k = min(len(old), count)
-    out[:k] = old[:k]
-    return out
+def _spare_rows(count: int) -> int:
+    """Rows a CPU buffer holds beyond ``count`` so that the next cuts (which add elements and
+    vertices) can rebuild in place: an eighth more, and at least 256."""
+    return count // 8 + 256
 
 
-def _take(old: np.ndarray, index: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """``old[index]``, given ``rows``, every row where ``index`` is not the identity."""
-    out = _prefix(old, len(index))
-    out[rows] = old[index[rows]]
-    return out
+class _Rows:
+    """The host arrays a rebuild writes: each the first rows of a buffer (kept in
+    ``buffers``), the old object's own when ``in_place`` and it has room (its first rows then
+    are the old rows already), else a new one with spare rows after the old rows copied."""
+
+    def __init__(self, old_buffers: dict | None = None):
+        self.old_buffers = old_buffers or {}
+        self.buffers: dict[str, np.ndarray] = {}
+
+    def __call__(self, name: str, old: np.ndarray, count: int) -> np.ndarray:
+        buf = self.old_buffers.get(name)
+        if buf is None or len(buf) < count:
+            buf = np.empty((count + _spare_rows(count),) + old.shape[1:], dtype=old.dtype)
+            k = min(len(old), count)
+            buf[:k] = old[:k]
+        self.buffers[name] = buf
+        return buf[:count]
+
+    def take(self, name: str, old: np.ndarray, index: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """``old[index]``, given ``rows``, every row where ``index`` is not the identity (the
+        values are gathered before any is written: ``old`` may be the buffer written)."""
+        out = self(name, old, len(index))
+        out[rows] = old[index[rows]]
+        return out
 
 
 def _reparented(parent: np.ndarray, count_before: int) -> np.ndarray:
@@ -243,37 +260,44 @@ def _touched_vertices(change) -> np.ndarray:
     return np.union1d(np.flatnonzero(~itself), np.concatenate([change.new_vertices, moved]))
 
 
-def _interpolated(old: np.ndarray, change, touched: np.ndarray) -> np.ndarray:
-    """Vertex attribute ``old`` (N_A, 3) after ``change``: the weighted sum of its sources,
-    computed where it may differ from ``old`` (``touched``) and rounded to ``old``'s type."""
-    out = _prefix(old, change.vertex_count_after)
+def _interpolated(out: np.ndarray, old: np.ndarray, change, touched: np.ndarray) -> np.ndarray:
+    """Vertex attribute ``old`` (N_A, 3) after ``change`` into ``out`` (N_B rows, the first
+    ones ``old``'s): the weighted sum of its sources, computed where it may differ from
+    ``old`` (``touched``) and rounded to ``out``'s type."""
     out[touched] = np.einsum("vk,vkj->vj", change.vertex_weights[touched], old[change.vertex_sources[touched]])
     return out
 
 
-def _forces_after(old: np.ndarray, change, touched: np.ndarray) -> np.ndarray:
-    """External forces after ``change``, from those before (``old``, (N_A, 3)): kept on the
-    vertices of before that did not move, zero on the others (``touched`` holds every vertex
-    that is not simply the vertex of the same index before)."""
-    forces = _prefix(old, change.vertex_count_after)
-    forces[touched] = 0.0
+def _forces_after(out: np.ndarray, old: np.ndarray, change, touched: np.ndarray) -> np.ndarray:
+    """External forces after ``change`` into ``out`` (N_B rows, the first ones ``old``'s), from
+    those before (``old``, (N_A, 3)): kept on the vertices of before that did not move, zero
+    on the others (``touched`` holds every vertex that is not simply the vertex of the same
+    index before)."""
     new_or_moved = np.isin(touched, change.new_vertices) | np.isin(touched, change.moved_vertices)
     kept = touched[~new_or_moved & (change.vertex_weights[touched, 0] == 1.0)]  # e.g. renumbered
-    forces[kept] = old[change.vertex_sources[kept, 0]]
-    return forces
+    kept_forces = old[change.vertex_sources[kept, 0]]
+    out[touched] = 0.0
+    out[kept] = kept_forces
+    return out
 
 
-def _device_array(host, dtype, device, fresh: bool = False):
-    """A device array of host data (converted to ``dtype``'s scalar type). On the CPU the
-    converted copy is wrapped rather than copied again (``wp.array`` converts, then copies):
-    a rebuild uploads every per-element array of the mesh. ``fresh``: ``host`` was made for
-    this array alone, so when it has the type already it is wrapped as it is."""
+def _device_array(host, dtype, device, buffers: dict | None = None, name: str = ""):
+    """A device array of host data (converted to ``dtype``'s scalar type).
+
+    On the CPU it wraps the start of a numpy buffer with spare rows, kept in
+    ``buffers[name]`` (for :meth:`Model.rebuild` in place); host data that already is the
+    start of that buffer (a rebuild's) is wrapped as it is, not copied."""
     if not wp.get_device(device).is_cpu:
         return wp.array(host, dtype=dtype, device=device)
     scalar = getattr(dtype, "_wp_scalar_type_", dtype)
-    scalar = np.float32 if scalar is float else wp.dtype_to_numpy(scalar)
-    converted = np.ascontiguousarray(host, dtype=scalar) if fresh else np.array(host, dtype=scalar, order="C")
-    return wp.array(converted, dtype=dtype, device=device, copy=False)
+    scalar = np.dtype(np.float32 if scalar is float else wp.dtype_to_numpy(scalar))
+    buffers = {} if buffers is None else buffers
+    buf = buffers.get(name)
+    if buf is None or getattr(host, "base", None) is not buf or buf.dtype != scalar:
+        host = np.asarray(host)
+        buf = buffers[name] = np.empty((len(host) + _spare_rows(len(host)),) + host.shape[1:], dtype=scalar)
+        buf[: len(host)] = host
+    return wp.array(buf[: len(host)], dtype=dtype, device=device, copy=False)
 
 
 def _is_shell(mesh) -> bool:
@@ -293,23 +317,35 @@ class State:
     """
 
     def __init__(self, model: "Model"):
-        self.particle_q = wp.clone(model.particle_q)
-        self.particle_qd = wp.clone(model.particle_qd)
-        self.particle_f = wp.zeros(model.particle_count, dtype=wp.vec3, device=model.device)
-        self.tet_rotation = wp.full(model.tet_rotation_shape, wp.quat_identity(), dtype=wp.quat, device=model.device)
+        d = model.device
+        self._buffers: dict[str, np.ndarray] = {}
+        if not d.is_cpu:
+            self.particle_q = wp.clone(model.particle_q)
+            self.particle_qd = wp.clone(model.particle_qd)
+            self.particle_f = wp.zeros(model.particle_count, dtype=wp.vec3, device=d)
+            self.tet_rotation = wp.full(model.tet_rotation_shape, wp.quat_identity(), dtype=wp.quat, device=d)
+            return
+        shape = (model.tet_rotation_shape,) if np.isscalar(model.tet_rotation_shape) else model.tet_rotation_shape
+        identity = np.zeros(tuple(shape) + (4,), dtype=np.float32)
+        identity[..., 3] = 1.0
+        for name, host, dtype in (("particle_q", model.particle_q.numpy(), wp.vec3),
+                                  ("particle_qd", model.particle_qd.numpy(), wp.vec3),
+                                  ("particle_f", np.zeros((model.particle_count, 3), dtype=np.float32), wp.vec3),
+                                  ("tet_rotation", identity, wp.quat)):
+            setattr(self, name, _device_array(host, dtype, d, self._buffers, name))
 
     @classmethod
     def of(cls, model: "Model", particle_q: np.ndarray, particle_qd: np.ndarray, particle_f: np.ndarray,
-           tet_rotation: np.ndarray, fresh: bool = False) -> "State":
+           tet_rotation: np.ndarray, buffers: dict | None = None) -> "State":
         """A State of ``model`` holding these host arrays ((N, 3), (N, 3), (N, 3), (M, 4)),
-        uploaded once (no initial values to overwrite); ``fresh``: made for this state alone
-        (wrapped as they are on the CPU when of the right type)."""
+        uploaded once (no initial values to overwrite); on the CPU those that are the start of
+        ``buffers[name]`` (a rebuild's) are wrapped, not copied."""
         state = cls.__new__(cls)
         d = model.device
-        state.particle_q = _device_array(particle_q, wp.vec3, d, fresh)
-        state.particle_qd = _device_array(particle_qd, wp.vec3, d, fresh)
-        state.particle_f = _device_array(particle_f, wp.vec3, d, fresh)
-        state.tet_rotation = _device_array(tet_rotation, wp.quat, d, fresh)
+        state._buffers = {} if buffers is None or not d.is_cpu else buffers
+        for name, host, dtype in (("particle_q", particle_q, wp.vec3), ("particle_qd", particle_qd, wp.vec3),
+                                  ("particle_f", particle_f, wp.vec3), ("tet_rotation", tet_rotation, wp.quat)):
+            setattr(state, name, _device_array(host, dtype, d, state._buffers, name))
         return state
 
     def clear_forces(self) -> None:
@@ -461,12 +497,12 @@ class Model:
                          (rho, E, nu), attachments)
 
     def _set_arrays(self, mesh, rest, tets, mass, load_mass, poses, rest_volume, stiffness, fixed_mask, material,
-                    attachments: Attachments, fresh: bool = False) -> None:
+                    attachments: Attachments, buffers: dict | None = None) -> None:
         """Create the device arrays of the model of ``mesh`` from host arrays, the derived ones
         included (``tets`` its elements, none for a shell; ``material``: density, Young's
-        modulus and Poisson's ratio per element). ``fresh``: the host arrays were made for this
-        model alone (a rebuild's), so on the CPU those of the right type are wrapped rather than
-        copied."""
+        modulus and Poisson's ratio per element). On the CPU the arrays wrap numpy buffers with
+        spare rows (``_buffers``); host arrays that already are the start of ``buffers[name]``
+        (a rebuild's) are wrapped as they are."""
         N, M = len(rest), len(tets)
         self.mesh = mesh
         self.tet_order = getattr(mesh, "order", 1)
@@ -479,27 +515,21 @@ class Model:
             self.tet_rotation_shape, index_type = (M, 4), vec10i
         rest_points = np.einsum("sj,sjk->sk", attachments.weights, rest[attachments.indices]) \
             if len(attachments) else np.zeros((0, 3))
-
         d = self.device
-
-        def upload(host, dtype, owned=fresh):
-            return _device_array(host, dtype, d, fresh=owned)
-
+        self._buffers = {} if buffers is None or not d.is_cpu else buffers
         self.attachment_count = len(attachments)
-        self.particle_q = upload(rest, wp.vec3)
         self.particle_qd = wp.zeros(N, dtype=wp.vec3, device=d)
-        self.particle_mass = upload(mass, float)
-        self.particle_load_mass = upload(load_mass, float, owned=fresh and load_mass is not mass)
-        self.particle_fixed = upload(fixed_mask, wp.int32)
-        self.tet_indices = upload(tets, index_type)
-        self.tet_poses = upload(poses, wp.mat33)
-        self.tet_rest_volume = upload(rest_volume, float)
-        self.tet_stiffness = upload(stiffness, wp.vec2)
-        self.tet_density, self.tet_youngs_modulus, self.tet_poisson_ratio = (upload(a, float) for a in material)
-        self.attachment_indices = upload(attachments.indices.reshape(-1, 4), wp.vec4i, owned=False)
-        self.attachment_weights = upload(attachments.weights.reshape(-1, 4), wp.vec4, owned=False)
-        self.attachment_stiffness = upload(attachments.stiffness, float, owned=False)
-        self.attachment_rest_points = upload(rest_points, wp.vec3)
+        for name, host, dtype in (
+                ("particle_q", rest, wp.vec3), ("particle_mass", mass, float), ("particle_load_mass", load_mass, float),
+                ("particle_fixed", fixed_mask, wp.int32), ("tet_indices", tets, index_type),
+                ("tet_poses", poses, wp.mat33), ("tet_rest_volume", rest_volume, float),
+                ("tet_stiffness", stiffness, wp.vec2), ("tet_density", material[0], float),
+                ("tet_youngs_modulus", material[1], float), ("tet_poisson_ratio", material[2], float),
+                ("attachment_indices", attachments.indices.reshape(-1, 4), wp.vec4i),
+                ("attachment_weights", attachments.weights.reshape(-1, 4), wp.vec4),
+                ("attachment_stiffness", attachments.stiffness, float),
+                ("attachment_rest_points", rest_points, wp.vec3)):
+            setattr(self, name, _device_array(host, dtype, d, self._buffers, name))
         self.tri_count = self.edge_count = 0
 
     def _upload_shell(self, mesh, rest, rho, E, nu, thickness, fixed_mask, attachments: Attachments) -> None:
@@ -542,7 +572,8 @@ class Model:
         self.edge_stiffness = wp.array(hinge_stiffness, dtype=float, device=d)
         self.edge_rest_curvature = wp.array(hinge_rest, dtype=wp.vec3, device=d)
 
-    def rebuild(self, mesh: TetMesh, change, state: State | None = None) -> tuple["Model", State | None]:
+    def rebuild(self, mesh: TetMesh, change, state: State | None = None, *,
+                in_place: bool = False) -> tuple["Model", State | None]:
         """The model of ``mesh``, derived from this one by ``change`` (a
         :class:`wcut.topology.TopologyChange`), and ``state`` carried over.
 
@@ -557,6 +588,12 @@ class Model:
 
         A shell (a crack opened by :mod:`wcut.topology.shell`) is laid out anew from ``mesh``,
         each triangle with its parent's material and thickness; its state is carried the same way.
+
+        ``in_place``: on the CPU, for linear elements, write the rows that change into this
+        model's and this state's own buffers where they have room (each array keeps spare rows
+        for the elements and vertices cuts add), instead of copying every array: what a
+        simulation that cuts wants (the cost then follows the cut, not the mesh). This model
+        and ``state`` must not be used afterwards. The result is the same either way.
 
         Returns ``(model, state)``; the solver must be made again for the new model.
         """
@@ -573,35 +610,42 @@ class Model:
             raise ModelError("rebuild: the change does not lead to this mesh")
         parent = change.element_parent
         reparented, touched = _reparented(parent, self.tet_count), _touched_vertices(change)
+        in_place = in_place and self.device.is_cpu and self.tet_order == 1
+        rows = _Rows(self._buffers if in_place else None)
         rest = mesh.vertices.astype(np.float32).astype(np.float64)
-        fixed_mask, attachments = self._fixed_after(change, touched), self._attachments_after(change)
+        fixed_mask, attachments = self._fixed_after(change, touched, rows), self._attachments_after(change)
         model = Model.__new__(Model)
         model.device = self.device
         model.rayleigh_mass, model.rayleigh_stiffness, model.gravity = \
             self.rayleigh_mass, self.rayleigh_stiffness, self.gravity
-        material = [_take(a.numpy(), parent, reparented)
-                    for a in (self.tet_density, self.tet_youngs_modulus, self.tet_poisson_ratio)]
+        material = [rows.take(name, getattr(self, name).numpy(), parent, reparented)
+                    for name in ("tet_density", "tet_youngs_modulus", "tet_poisson_ratio")]
         if self.tet_order == 2:  # the Gauss points' volume shares are not kept: all anew (cheap)
             poses, volume = _quadratic_rest_frames(rest, mesh.tets)
             model._upload(mesh, rest, poses, volume, *(a.astype(np.float64) for a in material), fixed_mask,
                           attachments)
         else:
-            tets, mass, poses, volume, stiffness = self._linear_rest_after(mesh, rest, change, reparented, touched,
-                                                                           material)
-            model._set_arrays(mesh, rest, tets, mass, mass, poses, volume, stiffness, fixed_mask, material,
-                              attachments, fresh=True)
+            tets, mass, load_mass, poses, volume, stiffness = self._linear_rest_after(
+                mesh, change, reparented, touched, material, rows)
+            rest32 = rows("particle_q", self.particle_q.numpy(), len(rest))
+            rest32[:] = rest
+            model._set_arrays(mesh, rest32, tets, mass, load_mass, poses, volume, stiffness, fixed_mask, material,
+                              attachments, rows.buffers)
         if state is None:
             return model, None
-        return model, State.of(model, _interpolated(state.particle_q.numpy(), change, touched),
-                               _interpolated(state.particle_qd.numpy(), change, touched),
-                               _forces_after(state.particle_f.numpy(), change, touched),
-                               _take(state.tet_rotation.numpy(), parent, reparented), fresh=True)
+        rows = _Rows(getattr(state, "_buffers", None) if in_place else None)
+        count = mesh.vertex_count
+        q, qd, f = (a.numpy() for a in (state.particle_q, state.particle_qd, state.particle_f))
+        return model, State.of(model, _interpolated(rows("particle_q", q, count), q, change, touched),
+                               _interpolated(rows("particle_qd", qd, count), qd, change, touched),
+                               _forces_after(rows("particle_f", f, count), f, change, touched),
+                               rows.take("tet_rotation", state.tet_rotation.numpy(), parent, reparented), rows.buffers)
 
-    def _linear_rest_after(self, mesh, rest, change, reparented, touched, material):
-        """Element indices (M, 4) int32, masses (N,), ``Dm^{-1}`` (M, 3, 3), volumes (M,) and
-        stiffness (M, 2) of the linear
-        model of ``mesh`` after ``change`` (float32, as uploaded; ``material`` the elements'
-        density, Young's modulus and Poisson's ratio).
+    def _linear_rest_after(self, mesh, change, reparented, touched, material, rows: _Rows):
+        """Element indices (M, 4) int32, masses and load masses (N,), ``Dm^{-1}`` (M, 3, 3),
+        volumes (M,) and stiffness (M, 2) of the linear model of ``mesh`` after ``change``
+        (float32, as uploaded, written by ``rows``; ``material`` the elements' density, Young's
+        modulus and Poisson's ratio).
 
         An element keeps the rows of its parent unless its rest shape changed; only those are
         computed. A vertex keeps its mass unless one of its elements changed (in shape, parent or
@@ -609,33 +653,40 @@ class Model:
         element order, as ``Model`` sums them."""
         parent, changed = change.element_parent, np.flatnonzero(change.element_rest_changed)
         tets, old_tets = np.ascontiguousarray(mesh.tets, dtype=np.int32), self.tet_indices.numpy()
-        poses = _take(self.tet_poses.numpy(), parent, reparented)
-        volume = _take(self.tet_rest_volume.numpy(), parent, reparented)
-        stiffness = _take(self.tet_stiffness.numpy(), parent, reparented)
-        new_poses, new_volume = _rest_frames(rest, tets[changed])
+        N, M, M_before = mesh.vertex_count, len(tets), len(old_tets)
+        # which masses change, from the elements before and after (before any is overwritten)
+        k = min(M, M_before)
+        old_pairs, pairs = old_tets[:k].view(np.int64), tets[:k].view(np.int64)  # a row as two int64
+        differ = np.flatnonzero((old_pairs[:, 0] != pairs[:, 0]) | (old_pairs[:, 1] != pairs[:, 1]))
+        renewed_elements = np.union1d(differ, np.concatenate([reparented, changed]))
+        renewed = np.zeros(N, dtype=bool)  # vertices whose mass is summed again
+        for old_vertices in (old_tets[renewed_elements[renewed_elements < M_before]], old_tets[M:]):
+            old_vertices = old_vertices.ravel()
+            renewed[old_vertices[old_vertices < N]] = True
+        renewed[tets[renewed_elements].ravel()] = True
+        renewed[touched] = True
+        renewed[change.vertex_count_before:] = True
+        indices = rows("tet_indices", old_tets, M)
+        indices[differ] = tets[differ]
+        indices[k:] = tets[k:]
+
+        poses = rows.take("tet_poses", self.tet_poses.numpy(), parent, reparented)
+        volume = rows.take("tet_rest_volume", self.tet_rest_volume.numpy(), parent, reparented)
+        stiffness = rows.take("tet_stiffness", self.tet_stiffness.numpy(), parent, reparented)
+        new_poses, new_volume = _rest_frames(mesh.vertices.astype(np.float32).astype(np.float64), tets[changed])
         poses[changed], volume[changed] = new_poses, new_volume
         mu, lam = lame_parameters(material[1][changed], material[2][changed])
         stiffness[changed] = np.stack([new_volume * mu, new_volume * lam], axis=-1)
 
-        N, M, M_before = len(rest), len(tets), len(old_tets)
-        k = min(M, M_before)
-        old_pairs, pairs = old_tets[:k].view(np.int64), tets[:k].view(np.int64)  # a row as two int64
-        differ = (old_pairs[:, 0] != pairs[:, 0]) | (old_pairs[:, 1] != pairs[:, 1])
-        rows = np.union1d(np.flatnonzero(differ), np.concatenate([reparented, changed]))
-        renewed = np.zeros(N, dtype=bool)  # vertices whose mass is summed again
-        for old_vertices in (old_tets[rows[rows < M_before]], old_tets[M:]):
-            old_vertices = old_vertices.ravel()
-            renewed[old_vertices[old_vertices < N]] = True
-        renewed[tets[rows].ravel()] = True
-        renewed[touched] = True
-        renewed[change.vertex_count_before:] = True
         around = np.flatnonzero(np.take(renewed, tets.ravel()).view(np.int32))  # four bools as one int32
         around_volume = volume[around].astype(np.float64)
         around_volume[np.searchsorted(around, changed)] = new_volume  # summed unrounded, as Model does
         shares = material[0][around].astype(np.float64) * around_volume / 4.0
-        mass = _prefix(self.particle_mass.numpy(), N)
-        mass[renewed] = np.bincount(tets[around].ravel(), weights=np.repeat(shares, 4), minlength=N)[renewed]
-        return tets, mass, poses, volume, stiffness
+        summed = np.bincount(tets[around].ravel(), weights=np.repeat(shares, 4), minlength=N)[renewed]
+        mass = rows("particle_mass", self.particle_mass.numpy(), N)
+        load_mass = rows("particle_load_mass", self.particle_load_mass.numpy(), N)
+        mass[renewed] = load_mass[renewed] = summed
+        return indices, mass, load_mass, poses, volume, stiffness
 
     def _rebuild_shell(self, mesh, change, state: State | None) -> tuple["Model", State | None]:
         """:meth:`rebuild` of a shell: every triangle takes its parent's material and thickness,
@@ -658,17 +709,21 @@ class Model:
                       attachments=self._attachments_after(change), device=self.device)
         if state is None:
             return model, None
-        return model, State.of(model, _interpolated(state.particle_q.numpy(), change, touched),
-                               _interpolated(state.particle_qd.numpy(), change, touched),
-                               _forces_after(state.particle_f.numpy(), change, touched), np.zeros((0, 4)))
+        rows, count = _Rows(), mesh.vertex_count
+        q, qd, f = (a.numpy() for a in (state.particle_q, state.particle_qd, state.particle_f))
+        return model, State.of(model, _interpolated(rows("particle_q", q, count), q, change, touched),
+                               _interpolated(rows("particle_qd", qd, count), qd, change, touched),
+                               _forces_after(rows("particle_f", f, count), f, change, touched), np.zeros((0, 4)),
+                               rows.buffers)
 
-    def _fixed_after(self, change, touched: np.ndarray) -> np.ndarray:
+    def _fixed_after(self, change, touched: np.ndarray, rows: _Rows | None = None) -> np.ndarray:
         """(N_B,) int32: a vertex after ``change`` is fixed when all the vertices it is
         interpolated from are (a vertex untouched by the change: when it was)."""
-        old = self.particle_fixed.numpy() == 1
-        fixed = _prefix(old.astype(np.int32), change.vertex_count_after)
+        old = self.particle_fixed.numpy()
         sources, weights = change.vertex_sources[touched], change.vertex_weights[touched]
-        fixed[touched] = np.all(old[sources] | (weights == 0.0), axis=1)
+        fixed_touched = np.all((old[sources] == 1) | (weights == 0.0), axis=1)
+        fixed = (rows or _Rows())("particle_fixed", old, change.vertex_count_after)
+        fixed[touched] = fixed_touched
         return fixed
 
     def _attachments_after(self, change) -> Attachments:

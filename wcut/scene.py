@@ -647,7 +647,7 @@ class Simulation:
         """Carry the model, state and control over ``change`` (which led to ``mesh``)."""
         targets = self.control.attachment_target.numpy()
         self.changes.append((mesh, change))
-        self.model, self.state = self.model.rebuild(mesh, change, self.state)
+        self.model, self.state = self.model.rebuild(mesh, change, self.state, in_place=True)  # old ones dropped
         self._next, self.control = self.model.state(), self.model.control()
         self._next.particle_f.assign(self.state.particle_f)
         self.control.attachment_target.assign(targets)

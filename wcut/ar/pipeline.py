@@ -340,7 +340,7 @@ class ArTracker:
         for s in self.internal:
             s.after(change, mesh.vertices, mesh.tets)
         targets = self.control.attachment_target.numpy()
-        self.model, self.state = self.model.rebuild(mesh, change, self.state)
+        self.model, self.state = self.model.rebuild(mesh, change, self.state, in_place=True)  # old ones dropped
         self.mesh = mesh
         attachments = self._attachments()
         self.model.attachment_indices.assign(attachments.indices)
