@@ -281,8 +281,8 @@ class Cutter:
         crosses: one vectorised pass over the vertices, then their elements by adjacency."""
         topo = self.topology
         x = self.coordinates()
-        if isinstance(surface, Plane) and bounds is None:
-            near = np.abs(surface.signed_distance(x)) <= self._margin
+        if isinstance(surface, Plane) and bounds is None:  # the mesh's own points: no validation pass
+            near = np.abs(x @ surface.normal - float(surface.point @ surface.normal)) <= self._margin
         else:
             lower, upper = surface.bounds() if bounds is None else bounds
             lower = np.asarray(lower, float) - self._margin

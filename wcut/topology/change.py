@@ -82,9 +82,12 @@ class TopologyChange:
             added_mask[new_slots] = True
         if journal.reshaped:
             reshaped[list(journal.reshaped)] = True
-        element_parent = index(origin[slots])
-        rest_changed = added_mask[slots] | reshaped[slots]
-        added = np.flatnonzero(added_mask[slots])
+        if len(slots) == topo.slot_count:  # every slot lives: no gathers over the whole mesh
+            element_parent, rest_changed, added = index(origin), added_mask | reshaped, np.flatnonzero(added_mask)
+        else:
+            element_parent = index(origin[slots])
+            rest_changed = added_mask[slots] | reshaped[slots]
+            added = np.flatnonzero(added_mask[slots])
         removed = index(np.array(sorted(journal.removed_base), dtype=np.int64))
 
         v_a, v_b = journal.base_vertex_count, topo.vertex_count

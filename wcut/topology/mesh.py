@@ -508,6 +508,21 @@ class TetTopology:
                     removed_base.add(t)
         free = self._free
         free.extend(reversed(removed))
+        if later:  # many elements (a write-back): their rows in one assignment
+            slots = [free.pop() if free else self._new_slot() for _ in added]  # may grow tets and alive
+            if slots:
+                self.tets[slots] = added
+                self.alive[slots] = True
+            for t, tet in zip(slots, added):
+                for v in tet:
+                    vertex_tets[v].add(t)
+            if qualities is not None:
+                for t, q in zip(slots, qualities):
+                    quality_of[t] = q
+            if journal:
+                origin.update(zip(slots, origins))
+            self._unlinked_faces.append((list(removed), list(zip(slots, added))))
+            return slots
         slots = []
         for i, tet in enumerate(added):
             if free:
@@ -517,18 +532,12 @@ class TetTopology:
                 alive, tets = self.alive, self.tets
             tets[t] = tet
             alive[t] = True
-            if later:
-                for v in tet:
-                    vertex_tets[v].add(t)
-            else:
-                self._link(t, tet)
+            self._link(t, tet)
             if qualities is not None:
                 quality_of[t] = qualities[i]
             if journal:
                 origin[t] = origins[i]
             slots.append(t)
-        if later:
-            self._unlinked_faces.append((list(removed), list(zip(slots, added))))
         return slots
 
     def _link_faces(self) -> None:
