@@ -581,3 +581,24 @@ def test_curved_boundary_keeps_every_boundary_face_inside_an_original_one(cube, 
     assert outside_original_faces(curved) == 0
     if epsilon > 0:  # the flat cutter does snap boundary vertices across faces here
         assert outside_original_faces(flat) > 0
+
+
+@settings(max_examples=40, deadline=None, derandomize=True, database=None)
+@given(seed=st.integers(0, 2**32 - 1), k=st.sampled_from([3, 4]))
+def test_crossing_sums_are_the_means_of_the_listed_points_to_the_bit(seed, k):
+    """The vectorised split points (faces of a plane, elements) equal, bit for bit, the mean
+    of the points :meth:`Cutter._crossing_weights` lists one row at a time: the compiled and
+    Python cuts must place their vertices identically."""
+    from wcut.cut.cutter import _crossing_sums, _mean
+
+    rng = np.random.default_rng(seed)
+    rows = [rng.choice(12, size=k, replace=False).tolist() for _ in range(30)]
+    pairs = {(a, b) for a in range(12) for b in range(a + 1, 12) if rng.random() < 0.4}
+    edges = {pair: (float(rng.uniform(0.01, 0.99)), None) for pair in sorted(pairs)}
+    on = set(rng.choice(12, size=int(rng.integers(0, 5)), replace=False).tolist())
+    sums, counts = _crossing_sums(rows, edges, on)
+    for row, total, count in zip(rows, sums, counts.tolist()):
+        points = Cutter._crossing_weights(row, edges, on)
+        assert count == len(points)
+        if points:
+            assert np.array_equal(total / count, np.array(_mean(points)))

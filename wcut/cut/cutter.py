@@ -585,11 +585,11 @@ class Cutter:
         ops = []
         for t, weights, _ in plan.splits:
             ops.append(("split_tet", [region.local_slot(t), -1, -1, -1], weights))
-        for i, key in enumerate(faces, start=first_face):
-            if type(surface) is Plane:
-                ops.append(("flip_or_split_face", *face_row(i)))
-            else:
-                ops.append(("flip_or_split_face", [local(v) for v in key] + [kernels.POINT_PENDING], np.zeros(4)))
+        if type(surface) is Plane:  # every split point known before the launch, all at once
+            points = dict(zip(faces, self._plane_face_points(sampling, faces)))
+        for key in faces:
+            known, reals = _known_point(points[key]) if points else (kernels.POINT_PENDING, np.zeros(4))
+            ops.append(("flip_or_split_face", [local(key[0]), local(key[1]), local(key[2]), known], reals))
         for (a, b), t in plan.edges:
             ops.append(("remove_or_bisect_edge", [local(a), local(b), int(self.curved_boundary), -1], [t, 0, 0, 0]))
         kinds, ints, reals = zip(*ops) if ops else ((), (), ())
@@ -677,16 +677,16 @@ class Cutter:
         tangent planes tells for all elements at once, and only the others are moved onto S
         one by one (:meth:`_onto_surface`)."""
         results: list = [None] * len(tets)
-        rows, means = [], []
-        for i, tet in enumerate(tets):
-            points = self._crossing_weights(tet, sampling.edges, sampling.on)
-            if len(points) >= 3:
+        totals, counts = _crossing_sums(tets, sampling.edges, sampling.on)
+        rows = []
+        for i, (tet, count) in enumerate(zip(tets, counts.tolist())):
+            if count >= 3:
                 rows.append(i)
-                means.append(_mean(points))
             else:
+                points = self._crossing_weights(tet, sampling.edges, sampling.on)
                 results[i] = self._extension_point(surface, sampling, tet, points), False
         if rows:
-            weights = np.array(means)
+            weights = totals[rows] / counts[rows, None]
             corners = self.coordinates()[np.array([tets[i] for i in rows])]  # (R, 4, 3)
             p = np.array([w @ c for w, c in zip(weights, corners)])  # as _onto_surface computes them
             origin, normal = surface.tangent_planes(p)
@@ -779,6 +779,15 @@ class Cutter:
                     w[i], w[j] = 1.0 - s, s
                     points.append(w)
         return points
+
+    @staticmethod
+    def _plane_face_points(sampling: _Sampling, keys: list) -> list:
+        """:meth:`_face_point` of faces ``keys`` (sorted vertex triples) of a plane, to the
+        bit, for all of them at once."""
+        totals, counts = _crossing_sums(keys, sampling.edges, sampling.on)
+        means, halfway = totals / np.maximum(counts, 1)[:, None], 0.5 * totals + 0.5 / 3.0
+        return [(mean, True) if count >= 2 else None if count == 0 else (half, False)
+                for count, mean, half in zip(counts.tolist(), means, halfway)]
 
     def _face_point(self, surface, sampling, key):
         """Weights (over the sorted face vertices) of the point where a face is split, and
@@ -948,6 +957,39 @@ class _RegionFaces:
 def _triangle_area(x: np.ndarray, key) -> float:
     """Twice the area (m^2) of triangle ``key`` of points ``x``."""
     return float(np.linalg.norm(np.cross(x[key[1]] - x[key[0]], x[key[2]] - x[key[0]])))
+
+
+def _crossing_sums(rows: list, edges: dict, on: set[int]) -> tuple[np.ndarray, np.ndarray]:
+    """For rows of k vertices (F, k), the sums (F, k) and the numbers (F,) of the points
+    :meth:`Cutter._crossing_weights` lists for each, summed in its order, component by
+    component (so ``sums / numbers`` is :func:`_mean` of them, to the bit: adding the zero
+    weights of the points a row lacks changes no sum). Vectorised: the crossings are looked
+    up by binary search in the sorted codes of the crossed edges."""
+    if not len(rows):
+        return np.zeros((0, 4)), np.zeros(0, dtype=np.int64)
+    vertices = np.asarray(rows, dtype=np.int64)
+    count, k = vertices.shape
+    crossed = np.array(list(edges), dtype=np.int64).reshape(-1, 2)
+    base = int(max(vertices.max(), crossed.max(initial=0))) + 1
+    codes = crossed[:, 0] * base + crossed[:, 1]
+    order = np.argsort(codes)
+    codes, params = codes[order], np.array([c[0] for c in edges.values()], dtype=np.float64)[order]
+    is_on = np.isin(vertices, np.fromiter(on, dtype=np.int64, count=len(on)))
+    sums, numbers = np.zeros((count, k)), np.zeros(count, dtype=np.int64)
+    for i in range(k):
+        sums[is_on[:, i], i] += 1.0
+        numbers += is_on[:, i]
+        for j in range(i + 1, k):
+            a, b = vertices[:, i], vertices[:, j]
+            code = np.minimum(a, b) * base + np.maximum(a, b)
+            at = np.minimum(np.searchsorted(codes, code), max(len(codes) - 1, 0))
+            hit = codes[at] == code if len(codes) else np.zeros(count, dtype=bool)
+            t = params[at[hit]]
+            s = np.where(a[hit] < b[hit], t, 1.0 - t)  # the parameter from vertex i
+            sums[hit, i] += 1.0 - s
+            sums[hit, j] += s
+            numbers += hit
+    return sums, numbers
 
 
 def _mean(points: list[list[float]]) -> list[float]:
