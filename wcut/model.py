@@ -242,6 +242,10 @@ class _Rows:
         return out
 
 
+#: a model's per-element material arrays
+_MATERIAL = ("tet_density", "tet_youngs_modulus", "tet_poisson_ratio")
+
+
 def _reparented(parent: np.ndarray, count_before: int) -> np.ndarray:
     """Elements after a change whose parent is not the element of the same index before:
     the added or renumbered ones and those past the old end."""
@@ -618,15 +622,14 @@ class Model:
         model.device = self.device
         model.rayleigh_mass, model.rayleigh_stiffness, model.gravity = \
             self.rayleigh_mass, self.rayleigh_stiffness, self.gravity
-        material = [rows.take(name, getattr(self, name).numpy(), parent, reparented)
-                    for name in ("tet_density", "tet_youngs_modulus", "tet_poisson_ratio")]
         if self.tet_order == 2:  # the Gauss points' volume shares are not kept: all anew (cheap)
+            material = [rows.take(name, getattr(self, name).numpy(), parent, reparented) for name in _MATERIAL]
             poses, volume = _quadratic_rest_frames(rest, mesh.tets)
             model._upload(mesh, rest, poses, volume, *(a.astype(np.float64) for a in material), fixed_mask,
                           attachments)
         else:
-            tets, mass, load_mass, poses, volume, stiffness = self._linear_rest_after(
-                mesh, change, reparented, touched, material, rows)
+            tets, mass, load_mass, poses, volume, stiffness, material = self._linear_rest_after(
+                mesh, rest, change, reparented, touched, rows)
             rest32 = rows("particle_q", self.particle_q.numpy(), len(rest))
             rest32[:] = rest
             model._set_arrays(mesh, rest32, tets, mass, load_mass, poses, volume, stiffness, fixed_mask, material,
@@ -641,52 +644,59 @@ class Model:
                                _forces_after(rows("particle_f", f, count), f, change, touched),
                                rows.take("tet_rotation", state.tet_rotation.numpy(), parent, reparented), rows.buffers)
 
-    def _linear_rest_after(self, mesh, change, reparented, touched, material, rows: _Rows):
+    def _linear_rest_after(self, mesh, rest, change, reparented, touched, rows: _Rows):
         """Element indices (M, 4) int32, masses and load masses (N,), ``Dm^{-1}`` (M, 3, 3),
-        volumes (M,) and stiffness (M, 2) of the linear model of ``mesh`` after ``change``
-        (float32, as uploaded, written by ``rows``; ``material`` the elements' density, Young's
-        modulus and Poisson's ratio).
+        volumes (M,), stiffness (M, 2) and material (density, Young's modulus, Poisson's ratio,
+        (M,) each) of the linear model of ``mesh`` after ``change`` (float32, as uploaded,
+        written by ``rows``; ``rest`` the float32-rounded rest positions).
 
         An element keeps the rows of its parent unless its rest shape changed; only those are
-        computed. A vertex keeps its mass unless one of its elements changed (in shape, parent or
-        vertices, before or after): those masses are summed again, over all their elements in
-        element order, as ``Model`` sums them."""
+        computed. A vertex's mass changes by the shares of the elements that changed around it
+        (in shape, parent or vertices): those of before are taken off, those of after added;
+        a new vertex's mass is the sum of its elements' shares. (After vertices were dropped and
+        the others renumbered, every mass is summed anew.)"""
         parent, changed = change.element_parent, np.flatnonzero(change.element_rest_changed)
-        tets, old_tets = np.ascontiguousarray(mesh.tets, dtype=np.int32), self.tet_indices.numpy()
-        N, M, M_before = mesh.vertex_count, len(tets), len(old_tets)
-        # which masses change, from the elements before and after (before any is overwritten)
+        tets, old_tets = mesh.tets, self.tet_indices.numpy()
+        N, M, M_before, N_before = mesh.vertex_count, len(tets), len(old_tets), self.particle_count
         k = min(M, M_before)
-        old_pairs, pairs = old_tets[:k].view(np.int64), tets[:k].view(np.int64)  # a row as two int64
-        differ = np.flatnonzero((old_pairs[:, 0] != pairs[:, 0]) | (old_pairs[:, 1] != pairs[:, 1]))
-        renewed_elements = np.union1d(differ, np.concatenate([reparented, changed]))
-        renewed = np.zeros(N, dtype=bool)  # vertices whose mass is summed again
-        for old_vertices in (old_tets[renewed_elements[renewed_elements < M_before]], old_tets[M:]):
-            old_vertices = old_vertices.ravel()
-            renewed[old_vertices[old_vertices < N]] = True
-        renewed[tets[renewed_elements].ravel()] = True
-        renewed[touched] = True
-        renewed[change.vertex_count_before:] = True
-        indices = rows("tet_indices", old_tets, M)
-        indices[differ] = tets[differ]
-        indices[k:] = tets[k:]
+        differ = np.flatnonzero((old_tets[:k] != tets[:k]).view(np.int32) != 0)  # 4 bools as one int32
+        renewed = np.union1d(differ, np.concatenate([reparented, changed]))
+        # the shares of before, read before any row is overwritten
+        gone = np.concatenate([renewed[renewed < M_before], np.arange(M, M_before)])
+        old_shares = self.tet_density.numpy()[gone].astype(np.float64) * self.tet_rest_volume.numpy()[gone] / 4.0
+        old_vertices = old_tets[gone].astype(np.int64)
 
+        indices = rows("tet_indices", old_tets, M)
+        indices[renewed] = tets[renewed]
+        material = [rows.take(name, getattr(self, name).numpy(), parent, reparented) for name in _MATERIAL]
         poses = rows.take("tet_poses", self.tet_poses.numpy(), parent, reparented)
         volume = rows.take("tet_rest_volume", self.tet_rest_volume.numpy(), parent, reparented)
         stiffness = rows.take("tet_stiffness", self.tet_stiffness.numpy(), parent, reparented)
-        new_poses, new_volume = _rest_frames(mesh.vertices.astype(np.float32).astype(np.float64), tets[changed])
+        new_poses, new_volume = _rest_frames(rest, tets[changed])
         poses[changed], volume[changed] = new_poses, new_volume
         mu, lam = lame_parameters(material[1][changed], material[2][changed])
         stiffness[changed] = np.stack([new_volume * mu, new_volume * lam], axis=-1)
 
-        around = np.flatnonzero(np.take(renewed, tets.ravel()).view(np.int32))  # four bools as one int32
-        around_volume = volume[around].astype(np.float64)
-        around_volume[np.searchsorted(around, changed)] = new_volume  # summed unrounded, as Model does
-        shares = material[0][around].astype(np.float64) * around_volume / 4.0
-        summed = np.bincount(tets[around].ravel(), weights=np.repeat(shares, 4), minlength=N)[renewed]
         mass = rows("particle_mass", self.particle_mass.numpy(), N)
         load_mass = rows("particle_load_mass", self.particle_load_mass.numpy(), N)
-        mass[renewed] = load_mass[renewed] = summed
-        return indices, mass, load_mass, poses, volume, stiffness
+        renumbered = len(touched) and np.any(change.vertex_sources[touched[touched < N_before], 0]
+                                             != touched[touched < N_before])
+        if renumbered:  # old and new vertex numbers differ: sum every mass anew
+            elements, start = np.arange(M), np.zeros(N)
+        else:
+            elements, start = renewed, np.zeros(N)
+            start[:N_before] = mass[:N_before]
+            start[:N_before] -= np.bincount(old_vertices.ravel(), weights=np.repeat(old_shares, 4), minlength=N_before)
+        new_shares_volume = volume[elements].astype(np.float64)
+        new_shares_volume[np.searchsorted(elements, changed)] = new_volume  # unrounded, as Model sums them
+        shares = material[0][elements].astype(np.float64) * new_shares_volume / 4.0
+        total = start + np.bincount(tets[elements].ravel(), weights=np.repeat(shares, 4), minlength=N)
+        moved = np.zeros(N, dtype=bool)
+        moved[tets[elements].ravel()] = True
+        moved[old_vertices[old_vertices < N].ravel()] = True
+        moved[N_before:] = True
+        mass[moved] = load_mass[moved] = total[moved]
+        return indices, mass, load_mass, poses, volume, stiffness, material
 
     def _rebuild_shell(self, mesh, change, state: State | None) -> tuple["Model", State | None]:
         """:meth:`rebuild` of a shell: every triangle takes its parent's material and thickness,
