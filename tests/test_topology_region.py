@@ -69,3 +69,24 @@ def test_compiled_cut_equals_the_python_operators(point, normal, epsilon):
     finally:
         cutter_module.remove_edge = original
     assert results[0] == results[1]
+
+
+def test_faces_left_unlinked_by_many_write_backs_are_linked_anew_when_read():
+    """Compiled cuts leave the face adjacency to be linked when read; once their log would
+    outgrow the mesh it is dropped (memory stays bounded in a long session) and the faces of
+    the live elements are linked anew on the next read: the adjacency is then still that of
+    the elements, and the Python operators work on it."""
+    mesh = beam(6, 3, 3, size=(0.6, 0.3, 0.3))
+    topo = TetTopology(mesh)
+    topo.unlinked_log_limit = lambda: 400  # a few cuts' worth (the default: the mesh's size)
+    volume = float(tet_volumes(mesh.vertices, mesh.tets).sum())
+    cutter = Cutter(topo, epsilon=0.1)
+    for x in (0.13, 0.27, 0.41, 0.52):
+        cutter.cut(Plane([x, 0.0, 0.0], [1.0, 0.2, 0.1]))
+        if topo._faces_stale:
+            break
+    assert topo._faces_stale and not topo._unlinked_faces
+    check_topology(topo, volume)  # reads the faces: linked anew
+    assert not topo._faces_stale
+    Cutter(topo, epsilon=0.1, compiled=False).cut(Plane([0.2, 0.15, 0.0], [0.1, 1.0, 0.2]))
+    check_topology(topo, volume)

@@ -206,9 +206,10 @@ def _untouched_vertices(change) -> np.ndarray:
 
 
 # A change is local: most elements and vertices keep their index, and all that is attached to
-# it. Model.rebuild keeps the rows of each array and recomputes only those that may differ,
-# which gives, bit for bit, what recomputing every row gives. On the CPU each array is the
-# start of a numpy buffer with spare rows, so a rebuild can also write them in place.
+# it. Model.rebuild keeps the rows of each array and recomputes only those that may differ
+# (rest frames bit for bit as recomputing every row gives them; masses updated by the shares of
+# the elements that changed, to float32 rounding). On the CPU each array is the start of a
+# numpy buffer with spare rows, so a rebuild can also write them in place.
 
 def _spare_rows(count: int) -> int:
     """Rows a CPU buffer holds beyond ``count`` so that the next cuts (which add elements and
@@ -679,9 +680,8 @@ class Model:
 
         mass = rows("particle_mass", self.particle_mass.numpy(), N)
         load_mass = rows("particle_load_mass", self.particle_load_mass.numpy(), N)
-        renumbered = len(touched) and np.any(change.vertex_sources[touched[touched < N_before], 0]
-                                             != touched[touched < N_before])
-        if renumbered:  # old and new vertex numbers differ: sum every mass anew
+        kept = touched[touched < N_before]
+        if np.any(change.vertex_sources[kept, 0] != kept):  # old and new vertex numbers differ: sum every mass anew
             elements, start = np.arange(M), np.zeros(N)
         else:
             elements, start = renewed, np.zeros(N)

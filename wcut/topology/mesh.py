@@ -173,8 +173,12 @@ class TetTopology:
         #: per slot, the keys of its element's four faces (:func:`_face_keys`): kept by
         #: ``_link`` so that unlinking and the adjacency walks never sort vertices again
         self._slot_face_keys: list[tuple | None] = [None] * len(self.tets)
-        #: replacements whose faces are not linked yet: (removed slots, [(slot, vertices)])
+        #: replacements whose faces are not linked yet: (removed slots, [(slot, vertices)]), and
+        #: how many elements they add; past the mesh's size the log is dropped and the faces
+        #: are marked stale: linked anew from the live elements when next read
         self._unlinked_faces: list[tuple[list[int], list[tuple[int, list[int]]]]] = []
+        self._unlinked_count = 0
+        self._faces_stale = False
         #: per slot, the element's float64 rest quality (:func:`tet_quality` of its vertices in
         #: slot order) once computed, else None: see :meth:`quality`
         self._slot_quality: list[float | None] = [None] * len(self.tets)
@@ -190,18 +194,24 @@ class TetTopology:
         """Number of live elements."""
         return self.slot_count - len(self._free)
 
+    def unlinked_log_limit(self) -> int:
+        """How many elements the log of replacements whose faces wait to be linked may add
+        before it is dropped (the faces then linked anew when read): the mesh's size, at
+        least 4096. It bounds the log's memory however long a session cuts."""
+        return max(self.tet_count, 4096)
+
     @property
     def face_tets(self) -> dict[tuple[int, int, int], list[int]]:
         """The elements of each face (key: sorted vertex triple), in the order they were
         linked (read it, never write it)."""
-        if self._unlinked_faces:
+        if self._unlinked_faces or self._faces_stale:
             self._link_faces()
         return self._face_tets
 
     @property
     def slot_face_keys(self) -> list:
         """Per slot, the keys of its element's four faces (read them, never write them)."""
-        if self._unlinked_faces:
+        if self._unlinked_faces or self._faces_stale:
             self._link_faces()
         return self._slot_face_keys
 
@@ -487,7 +497,7 @@ class TetTopology:
         parents = parents or [removed[0]] * len(added)
         quality_of, alive, vertex_tets, tets = self._slot_quality, self.alive, self.vertex_tets, self.tets
         later = not link_faces and not self.unsewn
-        if not later and self._unlinked_faces:
+        if not later and (self._unlinked_faces or self._faces_stale):
             self._link_faces()
         if journal:
             origin = journal.origin
@@ -521,7 +531,12 @@ class TetTopology:
                     quality_of[t] = q
             if journal:
                 origin.update(zip(slots, origins))
-            self._unlinked_faces.append((list(removed), list(zip(slots, added))))
+            if not self._faces_stale:
+                self._unlinked_faces.append((list(removed), list(zip(slots, added))))
+                self._unlinked_count += len(added)
+                if self._unlinked_count > self.unlinked_log_limit():
+                    self._unlinked_faces, self._unlinked_count, self._faces_stale = [], 0, True
+                    self._face_tets = {}
             return slots
         slots = []
         for i, tet in enumerate(added):
@@ -543,9 +558,16 @@ class TetTopology:
     def _link_faces(self) -> None:
         """Bring the face adjacency up to date with the replacements made with
         ``link_faces=False``, in order: what :meth:`_unlink` and :meth:`_link` would have done
-        to the faces then (the vertex stars were done at once)."""
+        to the faces then (the vertex stars were done at once). After so many that their log
+        was dropped, link the faces of the live elements anew, in slot order."""
+        if self._faces_stale:
+            self._face_tets, self._slot_face_keys = {}, [None] * len(self.tets)
+            self._unlinked_faces, self._unlinked_count, self._faces_stale = [], 0, False
+            live = self.live_tets()
+            batches = [([], list(zip(live.tolist(), self.tets[live].tolist())))]
+        else:
+            batches, self._unlinked_faces, self._unlinked_count = self._unlinked_faces, [], 0
         face_tets, slot_face_keys = self._face_tets, self._slot_face_keys
-        batches, self._unlinked_faces = self._unlinked_faces, []
         for removed, added in batches:
             for t in removed:
                 for key in slot_face_keys[t]:
@@ -701,7 +723,7 @@ class TetTopology:
             return 0
         if self._journal and self._journal.expression:
             raise TopologyError("cannot drop vertices after creating or moving some in the same change")
-        if self._unlinked_faces:  # linked with the old numbering first
+        if self._unlinked_faces or self._faces_stale:  # linked with the old numbering first
             self._link_faces()
         remap = np.cumsum(keep) - 1
         kept = np.flatnonzero(keep)
