@@ -436,35 +436,22 @@ class TetTopology:
     def _link(self, t: int, tet: list[int]) -> None:
         """Enter element t, with vertices ``tet``, in the adjacency (t last in the element
         list of each of its faces) and remember its face keys."""
-        vertex_tets, face_tets = self.vertex_tets, self._face_tets
+        vertex_tets = self.vertex_tets
         for v in tet:
             vertex_tets[v].add(t)
-        keys = self._slot_face_keys[t] = _face_keys(tet)
-        for key in keys:
-            owners = face_tets.get(key)
-            if owners is None:
-                face_tets[key] = [t]
-            else:
-                owners.append(t)
+        _enter_faces(self._face_tets, self._slot_face_keys, t, tet)
 
     def _unlink(self, t: int) -> None:
         """Remove element t from the adjacency (its vertices read from its face keys); a face
         left with fewer than two elements is no longer unsewn."""
-        vertex_tets, face_tets, unsewn = self.vertex_tets, self._face_tets, self.unsewn
+        vertex_tets = self.vertex_tets
         keys = self._slot_face_keys[t]
         first = keys[0]  # the three largest vertices; the smallest opens the second key
         vertex_tets[keys[1][0]].discard(t)
         vertex_tets[first[0]].discard(t)
         vertex_tets[first[1]].discard(t)
         vertex_tets[first[2]].discard(t)
-        for key in keys:
-            owners = face_tets[key]
-            owners.remove(t)
-            if len(owners) < 2:
-                if not owners:
-                    del face_tets[key]
-                if unsewn:  # most of the time nothing is unsewn: skip the hash of the key
-                    unsewn.discard(key)
+        _leave_faces(self._face_tets, keys, t, self.unsewn)
 
     def _new_slot(self) -> int:
         if self._free:
@@ -570,19 +557,9 @@ class TetTopology:
         face_tets, slot_face_keys = self._face_tets, self._slot_face_keys
         for removed, added in batches:
             for t in removed:
-                for key in slot_face_keys[t]:
-                    owners = face_tets[key]
-                    owners.remove(t)
-                    if not owners:
-                        del face_tets[key]
+                _leave_faces(face_tets, slot_face_keys[t], t, self.unsewn)
             for t, tet in added:
-                keys = slot_face_keys[t] = _face_keys(tet)
-                for key in keys:
-                    owners = face_tets.get(key)
-                    if owners is None:
-                        face_tets[key] = [t]
-                    else:
-                        owners.append(t)
+                _enter_faces(face_tets, slot_face_keys, t, tet)
 
     def interpolate(self, parents: list[int], weights) -> np.ndarray:
         """The barycentric combination of the attributes (a ``vertex_data`` row: rest
@@ -758,6 +735,31 @@ class TetTopology:
         if journal is None:
             raise TopologyError("end_change() without begin_change()")
         return TopologyChange.from_journal(journal, self)
+
+
+def _enter_faces(face_tets: dict, slot_face_keys: list, t: int, tet: list[int]) -> None:
+    """Enter element t, with vertices ``tet``, last in the element list of each of its faces,
+    and remember its face keys."""
+    keys = slot_face_keys[t] = _face_keys(tet)
+    for key in keys:
+        owners = face_tets.get(key)
+        if owners is None:
+            face_tets[key] = [t]
+        else:
+            owners.append(t)
+
+
+def _leave_faces(face_tets: dict, keys, t: int, unsewn: set) -> None:
+    """Take element t out of the element lists of its faces ``keys``; a face left with fewer
+    than two elements is no longer unsewn."""
+    for key in keys:
+        owners = face_tets[key]
+        owners.remove(t)
+        if len(owners) < 2:
+            if not owners:
+                del face_tets[key]
+            if unsewn:  # most of the time nothing is unsewn: skip the hash of the key
+                unsewn.discard(key)
 
 
 def _face_keys(tet: list[int]) -> tuple[tuple[int, int, int], ...]:
