@@ -679,14 +679,7 @@ class TetTopology:
                 unsewn.discard(key)
             elif len(owners) == 2 and owners[0] == t:
                 owners[0], owners[1] = owners[1], t
-        keys = self._slot_face_keys[t] = _face_keys(tet)
-        for key in keys:
-            if new in key:
-                owners = face_tets.get(key)
-                if owners is None:
-                    face_tets[key] = [t]
-                else:
-                    owners.append(t)
+        _enter_faces(face_tets, self._slot_face_keys, t, tet, containing=new)
         if self.rest_tuples[old] != self.rest_tuples[new]:
             self._slot_quality[t] = None
 
@@ -737,11 +730,14 @@ class TetTopology:
         return TopologyChange.from_journal(journal, self)
 
 
-def _enter_faces(face_tets: dict, slot_face_keys: list, t: int, tet: list[int]) -> None:
-    """Enter element t, with vertices ``tet``, last in the element list of each of its faces,
-    and remember its face keys."""
+def _enter_faces(face_tets: dict, slot_face_keys: list, t: int, tet: list[int], containing: int = -1) -> None:
+    """Enter element t, with vertices ``tet``, last in the element list of each of its faces
+    (only those with vertex ``containing`` when given: the others hold it already), and
+    remember its face keys."""
     keys = slot_face_keys[t] = _face_keys(tet)
     for key in keys:
+        if containing >= 0 and containing not in key:
+            continue
         owners = face_tets.get(key)
         if owners is None:
             face_tets[key] = [t]
