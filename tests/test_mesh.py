@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 import wcut
 from wcut.errors import MeshError, WcutError
-from wcut.mesh import TET_FACES, TetMesh, beam, tet_volumes
+from wcut.mesh import TET_FACES, TetMesh, beam, tet_volumes, unique_rows
 
 # One positively oriented unit-corner tetrahedron and a second one glued to its face (1, 2, 3).
 TET_X = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], dtype=np.float64)
@@ -403,3 +403,15 @@ def test_garbage_file_with_a_mesh_extension_raises_mesh_error(tmp_path, suffix, 
         TetMesh.load(path)
     captured = capsys.readouterr()
     assert captured.out == "" and captured.err == ""
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 4), st.sampled_from([1, 2, 7, 1000, 2**21, 2**40]), st.integers(0, 60), st.integers(0, 2**32))
+def test_unique_rows_equal_numpy_unique_of_rows(width, base, count, seed):
+    """One number per row, or numpy's row sort where it would overflow (base**width >= 2**63):
+    the same rows, first indices, inverse and counts as np.unique(axis=0)."""
+    rows = np.random.default_rng(seed).integers(0, base, size=(count, width))
+    options = {"return_index": True, "return_inverse": True, "return_counts": True}
+    for got, expected in zip(unique_rows(rows, base, **options), np.unique(rows, axis=0, **options)):
+        assert np.array_equal(got, expected.reshape(got.shape))
+    assert np.array_equal(unique_rows(rows, base), np.unique(rows, axis=0).reshape(-1, width))

@@ -48,10 +48,18 @@ def test_face_neighbors_from_scratch_are_mutual_and_match_the_faces():
                 assert t in neighbors[n].tolist()
 
 
-def test_face_neighbors_refuse_a_face_in_three_elements():
-    tets = np.array([[0, 1, 2, 3], [0, 1, 2, 4], [0, 1, 2, 5]])
-    with pytest.raises(TopologyError, match="more than two"):
+@pytest.mark.parametrize("offset", [0, 2**21])  # vertex numbers past 2**21: faces ranked, not coded
+def test_face_neighbors_refuse_a_face_in_three_elements(offset):
+    tets = np.array([[0, 1, 2, 3], [0, 1, 2, 4], [0, 1, 2, 5]]) + offset
+    with pytest.raises(TopologyError, match=f"face \\[{offset}, {offset + 1}, {offset + 2}\\] is in more than two"):
         face_neighbors(tets)
+
+
+def test_face_neighbors_do_not_depend_on_how_large_the_vertex_numbers_are():
+    mesh = small()
+    rng = np.random.default_rng(3)
+    numbers = rng.permutation(2**22)[: mesh.vertex_count]  # past 2**21: the faces are ranked
+    assert np.array_equal(face_neighbors(numbers[mesh.tets]), face_neighbors(mesh.tets))
 
 
 def test_arrays_of_a_mesh_are_valid_and_give_it_back():

@@ -54,6 +54,27 @@ def edge_matrices(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.stack([X[:, 0] - X[:, 3], X[:, 1] - X[:, 3], X[:, 2] - X[:, 3]], axis=2)
 
 
+def unique_rows(rows: np.ndarray, base: int, **options):
+    """``np.unique(rows, axis=0, **options)`` for rows (K, k) of integers in [0, base): the
+    same arrays, a tenth of the time (each row is sorted as one number, ``sum rows[:, i] *
+    base**(k-1-i)``, where that fits in an int64)."""
+    rows = np.asarray(rows, dtype=np.int64)
+    k = rows.shape[1]
+    base = max(int(base), 1)
+    if base ** k >= 2**63:
+        return np.unique(rows, axis=0, **options)
+    codes = rows[:, 0].copy()
+    for i in range(1, k):
+        codes *= base
+        codes += rows[:, i]
+    result = np.unique(codes, **options)
+    codes = result[0] if isinstance(result, tuple) else result
+    unique = np.empty((len(codes), k), dtype=np.int64)
+    for i in range(k - 1, -1, -1):
+        codes, unique[:, i] = np.divmod(codes, base)
+    return (unique, *result[1:]) if isinstance(result, tuple) else unique
+
+
 def _longest_edges(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     pairs = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
     lengths = [np.linalg.norm(vertices[tets[:, a]] - vertices[tets[:, b]], axis=1) for a, b in pairs]
@@ -204,7 +225,8 @@ class TetMesh(_VertexQueries):
         """Every face in at most two elements, on opposite sides (so no element is repeated
         and no two elements overlap across a shared face)."""
         faces = tets[:, TET_FACES].reshape(-1, 3)  # outward oriented, tets positively oriented
-        unique, inverse, counts = np.unique(_face_keys(faces), axis=0, return_inverse=True, return_counts=True)
+        unique, inverse, counts = unique_rows(_face_keys(faces), int(tets.max()) + 1, return_inverse=True,
+                                              return_counts=True)
         inverse = inverse.ravel()
         over = np.flatnonzero(counts > 2)
         if len(over):
@@ -231,7 +253,8 @@ class TetMesh(_VertexQueries):
         """The boundary triangles (faces owned by exactly one element), outward oriented."""
         if self._boundary is None:
             faces = self.tets[:, TET_FACES].reshape(-1, 3)
-            _, inverse, counts = np.unique(_face_keys(faces), axis=0, return_inverse=True, return_counts=True)
+            _, inverse, counts = unique_rows(_face_keys(faces), len(self.vertices), return_inverse=True,
+                                             return_counts=True)
             triangles = faces[counts[inverse.ravel()] == 1]
             vertex_ids, local = np.unique(triangles, return_inverse=True)
             self._boundary = BoundarySurface(triangles, vertex_ids, local.reshape(-1, 3))
@@ -240,7 +263,7 @@ class TetMesh(_VertexQueries):
     def edges(self) -> np.ndarray:
         """(E, 2) unique undirected edges, each as (low, high) vertex indices."""
         pairs = self.tets[:, [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]].reshape(-1, 2)
-        return np.unique(np.sort(pairs, axis=1), axis=0)
+        return unique_rows(np.sort(pairs, axis=1), len(self.vertices))
 
     def mean_edge_length(self) -> float:
         """Mean rest length (m) of the unique edges."""

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .mesh import unique_rows
+
 #: Corner pairs of the six edge nodes 4..9 (VTK tetra10 order).
 EDGES = np.array([[0, 1], [1, 2], [2, 0], [0, 3], [1, 3], [2, 3]], dtype=np.int64)
 
@@ -92,5 +94,5 @@ def midpoint_edges(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The unique edges of linear elements ``tets`` (M, 4) as sorted corner pairs (E, 2), and
     for every element the index of its six edges in VTK order (M, 6)."""
     pairs = np.sort(tets[:, EDGES], axis=2).reshape(-1, 2)
-    edges, inverse = np.unique(pairs, axis=0, return_inverse=True)
+    edges, inverse = unique_rows(pairs, int(pairs.max(initial=0)) + 1, return_inverse=True)
     return edges, inverse.reshape(-1, 6)

@@ -52,17 +52,34 @@ def face_neighbors(tets: np.ndarray) -> np.ndarray:
     neighbors = np.full(4 * m, -1, dtype=np.int32)
     if not m:
         return neighbors.reshape(0, 4)
-    faces = np.sort(np.stack([np.delete(tets, k, axis=1) for k in range(4)], axis=1), axis=2).reshape(-1, 3)
-    order = np.lexsort(faces.T[::-1])
-    sorted_faces = faces[order]
-    same = np.all(sorted_faces[1:] == sorted_faces[:-1], axis=1)
+    codes = _face_codes(tets).reshape(-1)
+    order = np.argsort(codes)
+    sorted_codes = codes[order]
+    same = sorted_codes[1:] == sorted_codes[:-1]
     if np.any(same[1:] & same[:-1]):
-        i = int(np.flatnonzero(same[1:] & same[:-1])[0])
-        raise TopologyError(f"face {sorted_faces[i].tolist()} is in more than two elements")
+        i = int(order[np.flatnonzero(same[1:] & same[:-1])[0]])
+        face = np.delete(tets[i // 4], i % 4)
+        raise TopologyError(f"face {sorted(face.tolist())} is in more than two elements")
     pairs = np.flatnonzero(same)
     neighbors[order[pairs]] = order[pairs + 1] // 4
     neighbors[order[pairs + 1]] = order[pairs] // 4
     return neighbors.reshape(m, 4)
+
+
+def _face_codes(tets: np.ndarray) -> np.ndarray:
+    """(M, 4) int64: one number per face opposite corner k, equal for equal faces (its sorted
+    vertices in base ``max + 1``): one sort key instead of three columns (a lexsort)."""
+    base = int(tets.max()) + 1
+    codes = np.empty(tets.shape, dtype=np.int64)
+    if base > 2**21:  # the code would overflow: rank the sorted triples instead
+        faces = np.sort(np.stack([np.delete(tets, k, axis=1) for k in range(4)], axis=1), axis=2).reshape(-1, 3)
+        _, rank = np.unique(faces, axis=0, return_inverse=True)
+        return rank.reshape(tets.shape)
+    for k in range(4):
+        x, y, z = (tets[:, i] for i in range(4) if i != k)
+        low, high = np.minimum(np.minimum(x, y), z), np.maximum(np.maximum(x, y), z)
+        codes[:, k] = (low * base + (x + y + z - low - high)) * base + high
+    return codes
 
 
 class TetArrays:
@@ -108,7 +125,7 @@ class TetArrays:
             "vertex_tet": np.full(n, -1, dtype=np.int32), "vertex_origin": np.full(n, -1, dtype=np.int32),
         }
         host["vertex_tet"][np.asarray(tets).reshape(-1)] = np.repeat(np.arange(m, dtype=np.int32), 4)
-        self.counts = wp.array([n, m], dtype=wp.int32, device=self.device)
+        self.counts = self._array(np.array([n, m], dtype=np.int32), wp.int32)
         self._allocate(host, n + spare, m + spare)
 
     _TYPES = {"tet_indices": wp.vec4i, "tet_neighbors": wp.vec4i, "tet_alive": wp.int32, "tet_parent": wp.int32,

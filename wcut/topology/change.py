@@ -10,6 +10,7 @@ vertices are barycentric combinations of old ones, never guesses.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import chain
 
 import numpy as np
 
@@ -24,6 +25,22 @@ def _compact_index(base_slots: np.ndarray):
     table = np.full(int(base_slots[-1]) + 1, -1, dtype=np.int64)
     table[base_slots] = np.arange(count)
     return lambda slots: table[np.asarray(slots, dtype=np.int64)]
+
+
+def _padded_rows(expressions: list[dict[int, float]], width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sources (R, width) and weights (R, width) of vertex expressions {source: weight}, in
+    their order, padded with the first source and weight 0 (flattened once: a list of rows
+    costs a Python object per entry)."""
+    lengths = np.fromiter(map(len, expressions), dtype=np.int64, count=len(expressions))
+    total = int(lengths.sum())
+    flat_sources = np.fromiter(chain.from_iterable(expressions), dtype=np.int64, count=total)
+    flat_weights = np.fromiter(chain.from_iterable(e.values() for e in expressions), dtype=np.float64, count=total)
+    starts = np.cumsum(lengths) - lengths
+    row, column = np.repeat(np.arange(len(expressions)), lengths), np.arange(total) - np.repeat(starts, lengths)
+    sources = np.repeat(flat_sources[starts][:, None], width, axis=1)
+    weights = np.zeros((len(expressions), width))
+    sources[row, column], weights[row, column] = flat_sources, flat_weights
+    return sources, weights
 
 
 @dataclass(frozen=True)
@@ -97,11 +114,9 @@ class TopologyChange:
         weights = np.zeros((v_b, width))
         weights[:, 0] = 1.0
         parent_element = np.full(v_b, -1, dtype=np.int64)
-        if journal.expression:  # one row per expressed vertex, padded: its first source, weight 0
-            rows = list(journal.expression)
-            exprs = list(journal.expression.values())
-            sources[rows] = [list(e) + [next(iter(e))] * (width - len(e)) for e in exprs]
-            weights[rows] = [list(e.values()) + [0.0] * (width - len(e)) for e in exprs]
+        if journal.expression:
+            rows = np.fromiter(journal.expression, dtype=np.int64, count=len(journal.expression))
+            sources[rows], weights[rows] = _padded_rows(list(journal.expression.values()), width)
         if journal.vertex_origin:
             created = [v for v in journal.expression if v in journal.vertex_origin]
             parent_element[created] = index(np.array([journal.vertex_origin[v] for v in created], dtype=np.int64))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..mesh import DEGENERATE_TOL, TET_FACES, TetMesh
+from ..mesh import DEGENERATE_TOL, TET_FACES, TetMesh, unique_rows
 from .mesh import TetTopology, TopologyError, face_key
 from .operators import tet_qualities
 
@@ -71,8 +71,9 @@ def check_closed(mesh: TetMesh) -> None:
     if not len(tri):
         return
     directed = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
-    forward = np.unique(directed, axis=0, return_counts=True)
-    backward = np.unique(directed[:, ::-1], axis=0, return_counts=True)
+    base = int(tri.max()) + 1
+    forward = unique_rows(directed, base, return_counts=True)
+    backward = unique_rows(directed[:, ::-1], base, return_counts=True)
     if not (np.array_equal(forward[0], backward[0]) and np.array_equal(forward[1], backward[1])):
         fset = {tuple(e): c for e, c in zip(forward[0].tolist(), forward[1].tolist())}
         bset = {tuple(e): c for e, c in zip(backward[0].tolist(), backward[1].tolist())}
@@ -93,7 +94,7 @@ def connected_components(mesh) -> np.ndarray:
     elements, sides = (mesh.triangles, shell.EDGES) if isinstance(mesh, ShellMesh) else (mesh.tets, TET_FACES)
     count = len(elements)
     faces = np.sort(elements[:, sides].reshape(-1, sides.shape[1]), axis=1)
-    _, inverse = np.unique(faces, axis=0, return_inverse=True)
+    _, inverse = unique_rows(faces, int(faces.max(initial=0)) + 1, return_inverse=True)
     inverse = inverse.ravel()
     owner = np.repeat(np.arange(count), len(sides))
     order = np.argsort(inverse, kind="stable")
