@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -732,6 +734,27 @@ def test_random_operator_sequences_keep_the_mesh_valid(data):
         attempt(topo, operator, *args)  # checks the mesh when applied, its integrity when refused
     # parents are checked per operator by test_change_record_expresses_new_mesh_in_old
     check_change(topo.end_change(), before, topo, parents=False)
+
+
+@pytest.mark.parametrize("name", sorted(MESHES))
+def test_new_topology_links_its_faces_when_read_as_at_once(name):
+    """A new topology links its faces when they are first read (a compiled cut never reads
+    them); they are then those of linking each element in order: the same keys, owners in
+    element order, the dictionary in the order the faces were first met."""
+    mesh = MESHES[name]()
+    topo = TetTopology(mesh)
+    assert [sorted(s) for s in topo.vertex_tets] == [sorted(np.flatnonzero((mesh.tets == v).any(axis=1)).tolist())
+                                                     for v in range(mesh.vertex_count)]
+    expected: dict = {}
+    for t, tet in enumerate(mesh.tets.tolist()):
+        for k in range(4):
+            expected.setdefault(face_key(*(tet[:k] + tet[k + 1:])), []).append(t)
+    assert sorted(topo.face_tets.items()) == sorted(expected.items())
+    first_met = list(dict.fromkeys(key for keys in topo.slot_face_keys[: mesh.tet_count] for key in keys))
+    assert list(topo.face_tets) == first_met
+    check_topology(topo)
+    unread = copy.deepcopy(TetTopology(mesh))  # faces not linked yet: a copy links them alike
+    assert list(unread.face_tets.items()) == list(topo.face_tets.items())
 
 
 class _FacesLinkedLater(TetTopology):

@@ -78,6 +78,7 @@ def test_faces_left_unlinked_by_many_write_backs_are_linked_anew_when_read():
     the elements, and the Python operators work on it."""
     mesh = beam(6, 3, 3, size=(0.6, 0.3, 0.3))
     topo = TetTopology(mesh)
+    assert topo.face_tets and not topo._faces_stale  # a new topology's faces: linked when first read
     topo.unlinked_log_limit = lambda: 400  # a few cuts' worth (the default: the mesh's size)
     volume = float(tet_volumes(mesh.vertices, mesh.tets).sum())
     cutter = Cutter(topo, epsilon=0.1)

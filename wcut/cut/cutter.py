@@ -198,6 +198,8 @@ class Cutter:
         self.epsilon = float(epsilon)
         self.curved_boundary = bool(curved_boundary)
         self.compiled = bool(compiled)
+        if not self.compiled:
+            topology.face_tets  # the Python operators walk the faces: linked now, not in the first cut
         if mean_edge_length is None:
             mean_edge_length = topology.to_mesh().mean_edge_length()
         self.mean_edge_length = float(mean_edge_length)

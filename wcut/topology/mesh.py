@@ -148,7 +148,10 @@ class TetTopology:
     ``slot_face_keys[t]`` holds the keys of live element t's four faces (the sorted triples,
     as in ``face_tets``), set when t is linked: the adjacency walks read them instead of
     sorting vertices again. Read them, never write them; only the editing methods here change
-    ``tets``.
+    ``tets``. The vertex stars ``vertex_tets`` are always up to date; the faces are linked
+    when ``face_tets`` or ``slot_face_keys`` is first read, and after the compiled cutter's
+    write-backs (:meth:`replace_tets` with ``link_faces=False``), exactly as linking them at
+    once would have: a session of compiled cuts never pays for them.
     """
 
     def __init__(self, mesh: TetMesh, positions=None, velocities=None):
@@ -173,17 +176,23 @@ class TetTopology:
         #: per slot, the keys of its element's four faces (:func:`_face_keys`): kept by
         #: ``_link`` so that unlinking and the adjacency walks never sort vertices again
         self._slot_face_keys: list[tuple | None] = [None] * len(self.tets)
-        #: replacements whose faces are not linked yet: (removed slots, [(slot, vertices)]), and
-        #: how many elements they add; past the mesh's size the log is dropped and the faces
-        #: are marked stale: linked anew from the live elements when next read
+        #: replacements whose faces are not linked yet: (removed slots, [(slot, vertices)]) (the
+        #: first: the mesh's elements), and how many elements they add; past the mesh's size the
+        #: log is dropped and the faces are marked stale: linked anew from the live elements
+        #: when next read
         self._unlinked_faces: list[tuple[list[int], list[tuple[int, list[int]]]]] = []
         self._unlinked_count = 0
         self._faces_stale = False
         #: per slot, the element's float64 rest quality (:func:`tet_quality` of its vertices in
         #: slot order) once computed, else None: see :meth:`quality`
         self._slot_quality: list[float | None] = [None] * len(self.tets)
+        vertex_tets = self.vertex_tets
         for t, tet in enumerate(mesh.tets.tolist()):
-            self._link(t, tet)
+            for v in tet:
+                vertex_tets[v].add(t)
+        # the faces are linked when first read (most of a large mesh's set-up, and a compiled
+        # cut never reads them): the first batch of the log, ahead of any replacement
+        self._unlinked_faces.append(([], _NumberedRows(mesh.tets)))
         self.unsewn: set[tuple[int, int, int]] = set()
         self.name = mesh.name
         self._journal: _Journal | None = None
@@ -728,6 +737,17 @@ class TetTopology:
         if journal is None:
             raise TopologyError("end_change() without begin_change()")
         return TopologyChange.from_journal(journal, self)
+
+
+class _NumberedRows:
+    """(slot, vertex list) of each row of ``tets``, made when iterated (a class, not a
+    generator: a topology can be copied)."""
+
+    def __init__(self, tets: np.ndarray):
+        self.tets = tets
+
+    def __iter__(self):
+        return enumerate(self.tets.tolist())
 
 
 def _enter_faces(face_tets: dict, slot_face_keys: list, t: int, tet: list[int], containing: int = -1) -> None:
