@@ -212,7 +212,7 @@ def _untouched_vertices(change) -> np.ndarray:
 # A change is local: most elements and vertices keep their index, and all that is attached to
 # it. Model.rebuild keeps the rows of each array and recomputes only those that may differ
 # (rest frames bit for bit as recomputing every row gives them; masses updated by the shares of
-# the elements that changed, to float32 rounding). On the CPU each array is the start of a
+# the elements that changed, in float64). On the CPU each array is the start of a
 # numpy buffer with spare rows, so a rebuild can also write them in place.
 
 def _spare_rows(count: int) -> int:
@@ -251,16 +251,23 @@ class _Rows:
 _MATERIAL = ("tet_density", "tet_youngs_modulus", "tet_poisson_ratio")
 
 
-def _reparented(parent: np.ndarray, count_before: int) -> np.ndarray:
+def _reparented(change) -> np.ndarray:
     """Elements after a change whose parent is not the element of the same index before:
-    the added or renumbered ones and those past the old end."""
-    k = min(count_before, len(parent))
+    the added or renumbered ones and those past the old end (the change's own list when it
+    has one: a scan of every element otherwise)."""
+    if change.reparented_elements is not None:
+        return change.reparented_elements
+    parent = change.element_parent
+    k = min(change.element_count_before, len(parent))
     return np.concatenate([np.flatnonzero(parent[:k] != np.arange(k)), np.arange(k, len(parent))])
 
 
 def _touched_vertices(change) -> np.ndarray:
     """Vertices after a change that are not simply the vertex of the same index before:
-    created, moved, renumbered, or interpolated from others. Sorted."""
+    created, moved, renumbered, or interpolated from others. Sorted (the change's own list
+    when it has one: a scan of every vertex otherwise)."""
+    if change.touched_vertices is not None:
+        return change.touched_vertices
     sources, weights = change.vertex_sources, change.vertex_weights
     itself = (sources[:, 0] == np.arange(len(sources))) & (weights[:, 0] == 1.0)
     for k in range(1, weights.shape[1]):  # column by column: far faster than .all(axis=1) on (N, K)
@@ -307,6 +314,14 @@ def _device_array(host, dtype, device, buffers: dict | None = None, name: str = 
         buf = buffers[name] = np.empty((len(host) + _spare_rows(len(host)),) + host.shape[1:], dtype=scalar)
         buf[: len(host)] = host
     return wp.array(buf[: len(host)], dtype=dtype, device=device, copy=False)
+
+
+def _host_buffer(host: np.ndarray, buffers: dict, name: str) -> np.ndarray:
+    """``host`` (float64) copied to the start of a buffer with spare rows, kept in
+    ``buffers[name]`` (a host-only array that :meth:`Model.rebuild` may write in place)."""
+    buf = buffers[name] = np.empty((len(host) + _spare_rows(len(host)),) + host.shape[1:])
+    buf[: len(host)] = host
+    return buf[: len(host)]
 
 
 def _is_shell(mesh) -> bool:
@@ -504,6 +519,9 @@ class Model:
             stiffness = volume[:, :, None] * np.stack([mu, lam], axis=-1)[:, None, :]
         self._set_arrays(mesh, rest, tets, mass, load_mass, poses, rest_volume, stiffness, fixed_mask,
                          (rho, E, nu), attachments)
+        if getattr(mesh, "order", 1) == 1:  # float64, unrounded: what a rebuild updates the masses from
+            self._mass_sums, self._volumes = (_host_buffer(host, self._buffers, name)
+                                              for name, host in (("mass_sums", mass), ("volumes", volume)))
 
     def _set_arrays(self, mesh, rest, tets, mass, load_mass, poses, rest_volume, stiffness, fixed_mask, material,
                     attachments: Attachments, buffers: dict | None = None) -> None:
@@ -618,7 +636,7 @@ class Model:
         if change.vertex_count_after != mesh.vertex_count or change.element_count_after != mesh.tet_count:
             raise ModelError("rebuild: the change does not lead to this mesh")
         parent = change.element_parent
-        reparented, touched = _reparented(parent, self.tet_count), _touched_vertices(change)
+        reparented, touched = _reparented(change), _touched_vertices(change)
         in_place = in_place and self.device.is_cpu and self.tet_order == 1
         rows = _Rows(self._buffers if in_place else None)
         rest = mesh.vertices.astype(np.float32).astype(np.float64)
@@ -633,12 +651,13 @@ class Model:
             model._upload(mesh, rest, poses, volume, *(a.astype(np.float64) for a in material), fixed_mask,
                           attachments)
         else:
-            tets, mass, load_mass, poses, volume, stiffness, material = self._linear_rest_after(
+            tets, mass, load_mass, poses, volume, stiffness, material, sums, volumes = self._linear_rest_after(
                 mesh, rest, change, reparented, touched, rows)
             rest32 = rows("particle_q", self.particle_q.numpy(), len(rest))
             rest32[:] = rest
             model._set_arrays(mesh, rest32, tets, mass, load_mass, poses, volume, stiffness, fixed_mask, material,
                               attachments, rows.buffers)
+            model._mass_sums, model._volumes = sums, volumes
         if state is None:
             return model, None
         rows = _Rows(getattr(state, "_buffers", None) if in_place else None)
@@ -653,22 +672,29 @@ class Model:
         """Element indices (M, 4) int32, masses and load masses (N,), ``Dm^{-1}`` (M, 3, 3),
         volumes (M,), stiffness (M, 2) and material (density, Young's modulus, Poisson's ratio,
         (M,) each) of the linear model of ``mesh`` after ``change`` (float32, as uploaded,
-        written by ``rows``; ``rest`` the float32-rounded rest positions).
+        written by ``rows``; ``rest`` the float32-rounded rest positions), then the float64
+        mass sums (N,) and unrounded volumes (M,) they derive from.
 
         An element keeps the rows of its parent unless its rest shape changed; only those are
         computed. A vertex's mass changes by the shares of the elements that changed around it
-        (in shape, parent or vertices): those of before are taken off, those of after added;
-        a new vertex's mass is the sum of its elements' shares. (After vertices were dropped and
-        the others renumbered, every mass is summed anew.)"""
+        (in shape, parent or vertices): those of before are taken off, those of after added, in
+        float64 from the unrounded sums and volumes (from the float32 masses, a vertex left
+        with a sliver's mass would keep the rounding error of its old mass); a new vertex's
+        mass is the sum of its elements' shares. (After vertices were dropped and the others
+        renumbered, every mass is summed anew.)"""
         parent, changed = change.element_parent, np.flatnonzero(change.element_rest_changed)
         tets, old_tets = mesh.tets, self.tet_indices.numpy()
         N, M, M_before, N_before = mesh.vertex_count, len(tets), len(old_tets), self.particle_count
         k = min(M, M_before)
-        differ = np.flatnonzero((old_tets[:k] != tets[:k]).view(np.int32) != 0)  # 4 bools as one int32
+        if change.rewired_elements is None:  # every element row compared
+            differ = np.flatnonzero((old_tets[:k] != tets[:k]).view(np.int32) != 0)  # 4 bools as one int32
+        else:  # the rows that may differ besides the reparented and reshaped ones
+            rewired = change.rewired_elements
+            differ = rewired[(old_tets[rewired] != tets[rewired]).any(axis=1)]
         renewed = np.union1d(differ, np.concatenate([reparented, changed]))
         # the shares of before, read before any row is overwritten
         gone = np.concatenate([renewed[renewed < M_before], np.arange(M, M_before)])
-        old_shares = self.tet_density.numpy()[gone].astype(np.float64) * self.tet_rest_volume.numpy()[gone] / 4.0
+        old_shares = self.tet_density.numpy()[gone].astype(np.float64) * self._volumes[gone] / 4.0
         old_vertices = old_tets[gone].astype(np.int64)
 
         indices = rows("tet_indices", old_tets, M)
@@ -677,30 +703,30 @@ class Model:
         poses = rows.take("tet_poses", self.tet_poses.numpy(), parent, reparented)
         volume = rows.take("tet_rest_volume", self.tet_rest_volume.numpy(), parent, reparented)
         stiffness = rows.take("tet_stiffness", self.tet_stiffness.numpy(), parent, reparented)
+        volumes = rows.take("volumes", self._volumes, parent, reparented)
         new_poses, new_volume = _rest_frames(rest, tets[changed])
-        poses[changed], volume[changed] = new_poses, new_volume
+        poses[changed], volume[changed], volumes[changed] = new_poses, new_volume, new_volume
         mu, lam = lame_parameters(material[1][changed], material[2][changed])
         stiffness[changed] = np.stack([new_volume * mu, new_volume * lam], axis=-1)
 
         mass = rows("particle_mass", self.particle_mass.numpy(), N)
         load_mass = rows("particle_load_mass", self.particle_load_mass.numpy(), N)
+        sums = rows("mass_sums", self._mass_sums, N)
         kept = touched[touched < N_before]
         if np.any(change.vertex_sources[kept, 0] != kept):  # old and new vertex numbers differ: sum every mass anew
             elements, start = np.arange(M), np.zeros(N)
         else:
             elements, start = renewed, np.zeros(N)
-            start[:N_before] = mass[:N_before]
+            start[:N_before] = sums[:N_before]
             start[:N_before] -= np.bincount(old_vertices.ravel(), weights=np.repeat(old_shares, 4), minlength=N_before)
-        new_shares_volume = volume[elements].astype(np.float64)
-        new_shares_volume[np.searchsorted(elements, changed)] = new_volume  # unrounded, as Model sums them
-        shares = material[0][elements].astype(np.float64) * new_shares_volume / 4.0
+        shares = material[0][elements].astype(np.float64) * volumes[elements] / 4.0  # unrounded, as Model sums them
         total = start + np.bincount(tets[elements].ravel(), weights=np.repeat(shares, 4), minlength=N)
         moved = np.zeros(N, dtype=bool)
         moved[tets[elements].ravel()] = True
         moved[old_vertices[old_vertices < N].ravel()] = True
         moved[N_before:] = True
-        mass[moved] = load_mass[moved] = total[moved]
-        return indices, mass, load_mass, poses, volume, stiffness, material
+        sums[moved] = mass[moved] = load_mass[moved] = total[moved]
+        return indices, mass, load_mass, poses, volume, stiffness, material, sums, volumes
 
     def _rebuild_shell(self, mesh, change, state: State | None) -> tuple["Model", State | None]:
         """:meth:`rebuild` of a shell: every triangle takes its parent's material and thickness,

@@ -9,7 +9,7 @@ vertices are barycentric combinations of old ones, never guesses.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from itertools import chain
 
 import numpy as np
@@ -77,6 +77,16 @@ class TopologyChange:
     element_rest_changed: np.ndarray
     removed_elements: np.ndarray
     added_elements: np.ndarray
+    # What the record's maker knows, so that Model.rebuild need not find it by scanning the
+    # mesh (None: unknown, scan). Each must be exactly what the scan gives.
+    #: elements after whose parent is not the element of the same index before, ascending
+    reparented_elements: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: vertices after not simply the vertex of the same index before (created, moved,
+    #: interpolated), ascending
+    touched_vertices: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: elements below both element counts whose vertices may differ from before although
+    #: neither their parent nor their rest shape changed (a vertex swapped for its copy)
+    rewired_elements: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def is_empty(self) -> bool:
@@ -99,8 +109,15 @@ class TopologyChange:
             added_mask[new_slots] = True
         if journal.reshaped:
             reshaped[list(journal.reshaped)] = True
+        hints = {}
         if len(slots) == topo.slot_count:  # every slot lives: no gathers over the whole mesh
             element_parent, rest_changed, added = index(origin), added_mask | reshaped, np.flatnonzero(added_mask)
+            if len(base_slots) == 0 or base_slots[-1] == len(base_slots) - 1:  # nor before: a slot is its index
+                count = min(len(base_slots), len(slots))
+                moved_in = sorted(t for t, o in journal.origin.items() if t != o and t < count)
+                hints["reparented_elements"] = np.concatenate(
+                    [np.array(moved_in, dtype=np.int64), np.arange(count, len(slots), dtype=np.int64)])
+                hints["rewired_elements"] = np.array(sorted(t for t in journal.rewired if t < count), dtype=np.int64)
         else:
             element_parent = index(origin[slots])
             rest_changed = added_mask[slots] | reshaped[slots]
@@ -121,13 +138,17 @@ class TopologyChange:
             created = [v for v in journal.expression if v in journal.vertex_origin]
             parent_element[created] = index(np.array([journal.vertex_origin[v] for v in created], dtype=np.int64))
         moved = np.array(sorted(v for v in journal.expression if v < v_a), dtype=np.int64)
+        if journal.vertex_renumber is None:
+            hints["touched_vertices"] = np.concatenate([moved, np.arange(v_a, v_b, dtype=np.int64)])
+        else:
+            hints.pop("rewired_elements", None)  # every row may have new vertex numbers
         return cls(
             vertex_count_before=v_a, vertex_count_after=v_b,
             element_count_before=len(base_slots), element_count_after=len(slots),
             vertex_sources=sources, vertex_weights=weights, vertex_parent_element=parent_element,
             new_vertices=np.arange(v_a, max(v_a, v_b), dtype=np.int64), moved_vertices=moved,
             element_parent=element_parent, element_rest_changed=rest_changed,
-            removed_elements=removed, added_elements=added,
+            removed_elements=removed, added_elements=added, **hints,
         )
 
 

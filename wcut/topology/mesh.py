@@ -677,6 +677,8 @@ class TetTopology:
         i = tet.index(old)
         tet[i] = new
         self.tets[t, i] = new
+        if self._journal:
+            self._journal.rewired.add(t)
         for v in tet:
             vertex_tets[v].add(t)
         for key in self._slot_face_keys[t]:
@@ -794,6 +796,7 @@ class _Journal:
         self.removed_base: set[int] = set()  # base slots no longer in the mesh
         self.origin: dict[int, int] = {}   # new slot -> base slot it lies in
         self.reshaped: set[int] = set()     # base slots whose rest shape may have changed
+        self.rewired: set[int] = set()      # slots given another vertex in place (retarget)
         self.expression: dict[int, dict[int, float]] = {}  # vertex -> {base vertex: weight}
         self.vertex_origin: dict[int, int] = {}
         self.vertex_renumber: np.ndarray | None = None  # vertex -> base vertex after dropping
