@@ -27,11 +27,10 @@ def _compact_index(base_slots: np.ndarray):
     return lambda slots: table[np.asarray(slots, dtype=np.int64)]
 
 
-def _padded_rows(expressions: list[dict[int, float]], width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Sources (R, width) and weights (R, width) of vertex expressions {source: weight}, in
-    their order, padded with the first source and weight 0 (flattened once: a list of rows
-    costs a Python object per entry)."""
-    lengths = np.fromiter(map(len, expressions), dtype=np.int64, count=len(expressions))
+def _padded_rows(expressions: list[dict[int, float]], lengths: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sources (R, width) and weights (R, width) of vertex expressions {source: weight} (of
+    ``lengths`` entries), in their order, padded with the first source and weight 0
+    (flattened once: a list of rows costs a Python object per entry)."""
     total = int(lengths.sum())
     flat_sources = np.fromiter(chain.from_iterable(expressions), dtype=np.int64, count=total)
     flat_weights = np.fromiter(chain.from_iterable(e.values() for e in expressions), dtype=np.float64, count=total)
@@ -103,10 +102,9 @@ class TopologyChange:
         origin = np.arange(topo.slot_count, dtype=np.int64)  # slot -> base slot it lies in
         added_mask = np.zeros(topo.slot_count, dtype=bool)
         reshaped = np.zeros(topo.slot_count, dtype=bool)
-        if journal.origin:
-            new_slots = np.fromiter(journal.origin.keys(), dtype=np.int64, count=len(journal.origin))
-            origin[new_slots] = np.fromiter(journal.origin.values(), dtype=np.int64, count=len(journal.origin))
-            added_mask[new_slots] = True
+        new_slots = np.fromiter(journal.origin.keys(), dtype=np.int64, count=len(journal.origin))
+        origin[new_slots] = np.fromiter(journal.origin.values(), dtype=np.int64, count=len(journal.origin))
+        added_mask[new_slots] = True
         if journal.reshaped:
             reshaped[list(journal.reshaped)] = True
         hints = {}
@@ -114,9 +112,8 @@ class TopologyChange:
             element_parent, rest_changed, added = index(origin), added_mask | reshaped, np.flatnonzero(added_mask)
             if len(base_slots) == 0 or base_slots[-1] == len(base_slots) - 1:  # nor before: a slot is its index
                 count = min(len(base_slots), len(slots))
-                moved_in = sorted(t for t, o in journal.origin.items() if t != o and t < count)
-                hints["reparented_elements"] = np.concatenate(
-                    [np.array(moved_in, dtype=np.int64), np.arange(count, len(slots), dtype=np.int64)])
+                moved_in = np.sort(new_slots[(origin[new_slots] != new_slots) & (new_slots < count)])
+                hints["reparented_elements"] = np.concatenate([moved_in, np.arange(count, len(slots), dtype=np.int64)])
                 hints["rewired_elements"] = np.array(sorted(t for t in journal.rewired if t < count), dtype=np.int64)
         else:
             element_parent = index(origin[slots])
@@ -125,19 +122,23 @@ class TopologyChange:
         removed = index(np.array(sorted(journal.removed_base), dtype=np.int64))
 
         v_a, v_b = journal.base_vertex_count, topo.vertex_count
-        width = max([4] + [len(e) for e in journal.expression.values()])
+        expressions = list(journal.expression.values())
+        rows = np.fromiter(journal.expression, dtype=np.int64, count=len(expressions))  # expressed vertices
+        lengths = np.fromiter(map(len, expressions), dtype=np.int64, count=len(expressions))
+        width = max(4, int(lengths.max(initial=0)))
         identity = np.arange(v_b, dtype=np.int64) if journal.vertex_renumber is None else journal.vertex_renumber
         sources = np.repeat(identity[:, None], width, axis=1)
         weights = np.zeros((v_b, width))
         weights[:, 0] = 1.0
+        if expressions:
+            sources[rows], weights[rows] = _padded_rows(expressions, lengths, width)
         parent_element = np.full(v_b, -1, dtype=np.int64)
-        if journal.expression:
-            rows = np.fromiter(journal.expression, dtype=np.int64, count=len(journal.expression))
-            sources[rows], weights[rows] = _padded_rows(list(journal.expression.values()), width)
         if journal.vertex_origin:
-            created = [v for v in journal.expression if v in journal.vertex_origin]
-            parent_element[created] = index(np.array([journal.vertex_origin[v] for v in created], dtype=np.int64))
-        moved = np.array(sorted(v for v in journal.expression if v < v_a), dtype=np.int64)
+            created = np.fromiter(journal.vertex_origin.keys(), dtype=np.int64, count=len(journal.vertex_origin))
+            origins = np.fromiter(journal.vertex_origin.values(), dtype=np.int64, count=len(created))
+            expressed = np.isin(created, rows)
+            parent_element[created[expressed]] = index(origins[expressed])
+        moved = np.sort(rows[rows < v_a])
         if journal.vertex_renumber is None:
             hints["touched_vertices"] = np.concatenate([moved, np.arange(v_a, v_b, dtype=np.int64)])
         else:
@@ -150,7 +151,6 @@ class TopologyChange:
             element_parent=element_parent, element_rest_changed=rest_changed,
             removed_elements=removed, added_elements=added, **hints,
         )
-
 
 
 def compose(first: TopologyChange, second: TopologyChange) -> TopologyChange:
