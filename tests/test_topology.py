@@ -757,6 +757,44 @@ def test_new_topology_links_its_faces_when_read_as_at_once(name):
     assert list(unread.face_tets.items()) == list(topo.face_tets.items())
 
 
+def test_change_of_a_cut_holds_what_changed_and_lays_out_the_same_arrays(monkeypatch):
+    """A change of a mesh whose slots are its elements' indices (no free slot) holds only what
+    changed; read, its whole-mesh arrays are those of the laid-out record of the same journal,
+    and its sparse answers the rows of those arrays: over compiled and Python cuts, where the
+    Python operators free and reuse slots and swap vertices for their copies."""
+    from wcut.cut import Cutter, Plane
+    from wcut.topology.change import TopologyChange, _JournalChange
+
+    journals = []
+    record = TopologyChange.from_journal.__func__
+    monkeypatch.setattr(TopologyChange, "from_journal",
+                        classmethod(lambda cls, journal, topo: journals.append(journal) or record(cls, journal, topo)))
+    topo = TetTopology(beam(6, 3, 3, size=(0.6, 0.3, 0.3)))
+    rng = np.random.default_rng(5)
+    sparse = 0
+    for compiled, point, normal in [(True, [0.13, 0, 0], [1, 0.1, 0.2]), (False, [0.27, 0, 0], [1, -0.3, 0.1]),
+                                    (True, [0.2, 0.15, 0], [0.1, 1, 0.3]), (False, [0.41, 0, 0.1], [0.2, 0.3, 1])]:
+        change = Cutter(topo, epsilon=0.2, compiled=compiled).cut(Plane(point, normal)).change
+        laid_out = TopologyChange._laid_out(journals[-1], topo)
+        if not isinstance(change, _JournalChange):
+            continue
+        sparse += 1
+        vertices = np.sort(rng.choice(change.vertex_count_after, 40, replace=False))
+        elements = np.sort(rng.choice(change.element_count_after, 40, replace=False))
+        sources, weights = change.vertex_rows(vertices)
+        parents, rest_changed = change.element_parents(elements), change.rest_changed_elements()
+        for name in TopologyChange.__dataclass_fields__:
+            got, expected = getattr(change, name), getattr(laid_out, name)
+            assert type(got) is type(expected) and np.array_equal(got, expected), name
+            if isinstance(got, np.ndarray):
+                assert got.dtype == expected.dtype, name
+        assert np.array_equal(sources, laid_out.vertex_sources[vertices])
+        assert np.array_equal(weights, laid_out.vertex_weights[vertices])
+        assert np.array_equal(parents, laid_out.element_parent[elements])
+        assert np.array_equal(rest_changed, np.flatnonzero(laid_out.element_rest_changed))
+    assert sparse >= 2
+
+
 class _FacesLinkedLater(TetTopology):
     """A topology whose every replacement leaves its faces to be linked when next read."""
 

@@ -239,12 +239,23 @@ class _Rows:
         self.buffers[name] = buf
         return buf[:count]
 
-    def take(self, name: str, old: np.ndarray, index: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """``old[index]``, given ``rows``, every row where ``index`` is not the identity (the
-        values are gathered before any is written: ``old`` may be the buffer written)."""
-        out = self(name, old, len(index))
-        out[rows] = old[index[rows]]
+    def take(self, name: str, old: np.ndarray, reparented: "_Reparented") -> np.ndarray:
+        """``old[parent]`` for the element parents after a change, given the rows where the
+        parent is not the element of the same index (the values are gathered before any is
+        written: ``old`` may be the buffer written)."""
+        out = self(name, old, reparented.count)
+        out[reparented.rows] = old[reparented.parents]
         return out
+
+
+@dataclass(frozen=True)
+class _Reparented:
+    """The elements after a change (``count``) whose parent is not the element of the same
+    index before (``rows``, ascending), and those parents."""
+
+    count: int
+    rows: np.ndarray
+    parents: np.ndarray
 
 
 #: a model's per-element material arrays
@@ -260,6 +271,11 @@ def _reparented(change) -> np.ndarray:
     parent = change.element_parent
     k = min(change.element_count_before, len(parent))
     return np.concatenate([np.flatnonzero(parent[:k] != np.arange(k)), np.arange(k, len(parent))])
+
+
+def _reparented_rows(change) -> _Reparented:
+    rows = _reparented(change)
+    return _Reparented(change.element_count_after, rows, change.element_parents(rows))
 
 
 def _touched_vertices(change) -> np.ndarray:
@@ -280,7 +296,8 @@ def _interpolated(out: np.ndarray, old: np.ndarray, change, touched: np.ndarray)
     """Vertex attribute ``old`` (N_A, 3) after ``change`` into ``out`` (N_B rows, the first
     ones ``old``'s): the weighted sum of its sources, computed where it may differ from
     ``old`` (``touched``) and rounded to ``out``'s type."""
-    out[touched] = np.einsum("vk,vkj->vj", change.vertex_weights[touched], old[change.vertex_sources[touched]])
+    sources, weights = change.vertex_rows(touched)
+    out[touched] = np.einsum("vk,vkj->vj", weights, old[sources])
     return out
 
 
@@ -290,8 +307,10 @@ def _forces_after(out: np.ndarray, old: np.ndarray, change, touched: np.ndarray)
     on the others (``touched`` holds every vertex that is not simply the vertex of the same
     index before)."""
     new_or_moved = np.isin(touched, change.new_vertices) | np.isin(touched, change.moved_vertices)
-    kept = touched[~new_or_moved & (change.vertex_weights[touched, 0] == 1.0)]  # e.g. renumbered
-    kept_forces = old[change.vertex_sources[kept, 0]]
+    sources, weights = change.vertex_rows(touched)
+    kept_rows = ~new_or_moved & (weights[:, 0] == 1.0)  # e.g. renumbered
+    kept = touched[kept_rows]
+    kept_forces = old[sources[kept_rows, 0]]
     out[touched] = 0.0
     out[kept] = kept_forces
     return out
@@ -635,8 +654,7 @@ class Model:
                              f"and {self.tet_count}")
         if change.vertex_count_after != mesh.vertex_count or change.element_count_after != mesh.tet_count:
             raise ModelError("rebuild: the change does not lead to this mesh")
-        parent = change.element_parent
-        reparented, touched = _reparented(change), _touched_vertices(change)
+        reparented, touched = _reparented_rows(change), _touched_vertices(change)
         in_place = in_place and self.device.is_cpu and self.tet_order == 1
         rows = _Rows(self._buffers if in_place else None)
         rest = mesh.vertices.astype(np.float32).astype(np.float64)
@@ -646,7 +664,7 @@ class Model:
         model.rayleigh_mass, model.rayleigh_stiffness, model.gravity = \
             self.rayleigh_mass, self.rayleigh_stiffness, self.gravity
         if self.tet_order == 2:  # the Gauss points' volume shares are not kept: all anew (cheap)
-            material = [rows.take(name, getattr(self, name).numpy(), parent, reparented) for name in _MATERIAL]
+            material = [rows.take(name, getattr(self, name).numpy(), reparented) for name in _MATERIAL]
             poses, volume = _quadratic_rest_frames(rest, mesh.tets)
             model._upload(mesh, rest, poses, volume, *(a.astype(np.float64) for a in material), fixed_mask,
                           attachments)
@@ -666,7 +684,7 @@ class Model:
         return model, State.of(model, _interpolated(rows("particle_q", q, count), q, change, touched),
                                _interpolated(rows("particle_qd", qd, count), qd, change, touched),
                                _forces_after(rows("particle_f", f, count), f, change, touched),
-                               rows.take("tet_rotation", state.tet_rotation.numpy(), parent, reparented), rows.buffers)
+                               rows.take("tet_rotation", state.tet_rotation.numpy(), reparented), rows.buffers)
 
     def _linear_rest_after(self, mesh, rest, change, reparented, touched, rows: _Rows):
         """Element indices (M, 4) int32, masses and load masses (N,), ``Dm^{-1}`` (M, 3, 3),
@@ -682,7 +700,7 @@ class Model:
         with a sliver's mass would keep the rounding error of its old mass); a new vertex's
         mass is the sum of its elements' shares. (After vertices were dropped and the others
         renumbered, every mass is summed anew.)"""
-        parent, changed = change.element_parent, np.flatnonzero(change.element_rest_changed)
+        changed = change.rest_changed_elements()
         tets, old_tets = mesh.tets, self.tet_indices.numpy()
         N, M, M_before, N_before = mesh.vertex_count, len(tets), len(old_tets), self.particle_count
         k = min(M, M_before)
@@ -691,7 +709,7 @@ class Model:
         else:  # the rows that may differ besides the reparented and reshaped ones
             rewired = change.rewired_elements
             differ = rewired[(old_tets[rewired] != tets[rewired]).any(axis=1)]
-        renewed = np.union1d(differ, np.concatenate([reparented, changed]))
+        renewed = np.union1d(differ, np.concatenate([reparented.rows, changed]))
         # the shares of before, read before any row is overwritten
         gone = np.concatenate([renewed[renewed < M_before], np.arange(M, M_before)])
         old_shares = self.tet_density.numpy()[gone].astype(np.float64) * self._volumes[gone] / 4.0
@@ -699,11 +717,11 @@ class Model:
 
         indices = rows("tet_indices", old_tets, M)
         indices[renewed] = tets[renewed]
-        material = [rows.take(name, getattr(self, name).numpy(), parent, reparented) for name in _MATERIAL]
-        poses = rows.take("tet_poses", self.tet_poses.numpy(), parent, reparented)
-        volume = rows.take("tet_rest_volume", self.tet_rest_volume.numpy(), parent, reparented)
-        stiffness = rows.take("tet_stiffness", self.tet_stiffness.numpy(), parent, reparented)
-        volumes = rows.take("volumes", self._volumes, parent, reparented)
+        material = [rows.take(name, getattr(self, name).numpy(), reparented) for name in _MATERIAL]
+        poses = rows.take("tet_poses", self.tet_poses.numpy(), reparented)
+        volume = rows.take("tet_rest_volume", self.tet_rest_volume.numpy(), reparented)
+        stiffness = rows.take("tet_stiffness", self.tet_stiffness.numpy(), reparented)
+        volumes = rows.take("volumes", self._volumes, reparented)
         new_poses, new_volume = _rest_frames(rest, tets[changed])
         poses[changed], volume[changed], volumes[changed] = new_poses, new_volume, new_volume
         mu, lam = lame_parameters(material[1][changed], material[2][changed])
@@ -713,7 +731,7 @@ class Model:
         load_mass = rows("particle_load_mass", self.particle_load_mass.numpy(), N)
         sums = rows("mass_sums", self._mass_sums, N)
         kept = touched[touched < N_before]
-        if np.any(change.vertex_sources[kept, 0] != kept):  # old and new vertex numbers differ: sum every mass anew
+        if np.any(change.vertex_rows(kept)[0][:, 0] != kept):  # old and new vertex numbers differ: sum every mass anew
             elements, start = np.arange(M), np.zeros(N)
         else:
             elements, start = renewed, np.zeros(N)
@@ -760,7 +778,7 @@ class Model:
         """(N_B,) int32: a vertex after ``change`` is fixed when all the vertices it is
         interpolated from are (a vertex untouched by the change: when it was)."""
         old = self.particle_fixed.numpy()
-        sources, weights = change.vertex_sources[touched], change.vertex_weights[touched]
+        sources, weights = change.vertex_rows(touched)
         fixed_touched = np.all((old[sources] == 1) | (weights == 0.0), axis=1)
         fixed = (rows or _Rows())("particle_fixed", old, change.vertex_count_after)
         fixed[touched] = fixed_touched

@@ -87,15 +87,42 @@ class TopologyChange:
     #: neither their parent nor their rest shape changed (a vertex swapped for its copy)
     rewired_elements: np.ndarray | None = field(default=None, repr=False, compare=False)
 
+    # What Model.rebuild reads: a few rows each (the journal's record answers without laying
+    # out the whole-mesh arrays).
+    def vertex_rows(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``vertex_sources[vertices]`` and ``vertex_weights[vertices]``."""
+        return self.vertex_sources[vertices], self.vertex_weights[vertices]
+
+    def element_parents(self, elements: np.ndarray) -> np.ndarray:
+        """``element_parent[elements]``."""
+        return self.element_parent[elements]
+
+    def rest_changed_elements(self) -> np.ndarray:
+        """``flatnonzero(element_rest_changed)``: the elements whose rest data is new."""
+        return np.flatnonzero(self.element_rest_changed)
+
     @property
     def is_empty(self) -> bool:
         """True when the mesh did not change at all."""
         return (self.vertex_count_after == self.vertex_count_before and len(self.removed_elements) == 0
                 and len(self.added_elements) == 0 and len(self.moved_vertices) == 0
-                and not self.element_rest_changed.any())
+                and not len(self.rest_changed_elements()))
 
     @classmethod
     def from_journal(cls, journal, topo) -> "TopologyChange":
+        """The change recorded in ``journal`` since ``topo``'s :meth:`begin_change`. Where the
+        slots are the elements' indices before and after and no vertex was renumbered (a cut
+        of a mesh without free slots), it holds only what changed and lays out its whole-mesh
+        arrays when they are first read: the cost follows the cut."""
+        base_slots = journal.base_slots
+        if not topo._free and journal.vertex_renumber is None and \
+                (len(base_slots) == 0 or base_slots[-1] == len(base_slots) - 1):
+            return _JournalChange.of(journal, topo)  # a slot is its element's index, before and after
+        return cls._laid_out(journal, topo)
+
+    @classmethod
+    def _laid_out(cls, journal, topo) -> "TopologyChange":
+        """:meth:`from_journal` with every array laid out (whatever the slots)."""
         base_slots = journal.base_slots
         index = _compact_index(base_slots)
         slots = topo.live_tets()
@@ -151,6 +178,117 @@ class TopologyChange:
             element_parent=element_parent, element_rest_changed=rest_changed,
             removed_elements=removed, added_elements=added, **hints,
         )
+
+
+@dataclass
+class _Sparse:
+    """What a :class:`_JournalChange` holds instead of its whole-mesh arrays: the new slots
+    and the slots they lie in (sorted), the elements with new rest data, the expressed
+    vertices (sorted) with their sources and weights (padded to ``width``), the created
+    vertices and the elements they were created in."""
+
+    new_slots: np.ndarray
+    new_slot_origins: np.ndarray
+    rest_changed: np.ndarray
+    rows: np.ndarray
+    row_sources: np.ndarray
+    row_weights: np.ndarray
+    width: int
+    created: np.ndarray
+    created_in: np.ndarray
+
+
+class _JournalChange(TopologyChange):
+    """A :class:`TopologyChange` from a journal whose slots are the elements' indices before
+    and after (no free slot) and whose vertices keep their numbers: it holds only what
+    changed, and lays out the whole-mesh arrays (``vertex_sources``, ``element_parent``, ...)
+    when they are first read. Its sparse answers (:meth:`vertex_rows`, ...) are what those
+    arrays give. (A copy made by ``dataclasses.replace`` has them all laid out: a plain
+    record.)"""
+
+    _DENSE = ("vertex_sources", "vertex_weights", "vertex_parent_element", "element_parent",
+              "element_rest_changed")
+
+    @classmethod
+    def of(cls, journal, topo) -> "_JournalChange":
+        v_a, v_b, m_a, m_b = journal.base_vertex_count, topo.vertex_count, len(journal.base_slots), topo.slot_count
+        new_slots = np.fromiter(journal.origin.keys(), dtype=np.int64, count=len(journal.origin))
+        origins = np.fromiter(journal.origin.values(), dtype=np.int64, count=len(new_slots))
+        expressions = list(journal.expression.values())
+        rows = np.fromiter(journal.expression, dtype=np.int64, count=len(expressions))
+        lengths = np.fromiter(map(len, expressions), dtype=np.int64, count=len(expressions))
+        width = max(4, int(lengths.max(initial=0)))
+        sources, weights = _padded_rows(expressions, lengths, width) if expressions else \
+            (np.zeros((0, width), dtype=np.int64), np.zeros((0, width)))
+        created = np.fromiter(journal.vertex_origin.keys(), dtype=np.int64, count=len(journal.vertex_origin))
+        created_in = np.fromiter(journal.vertex_origin.values(), dtype=np.int64, count=len(created))
+        expressed = np.isin(created, rows)
+        by_slot, by_vertex = np.argsort(new_slots), np.argsort(rows)
+        sparse = _Sparse(new_slots[by_slot], origins[by_slot],
+                         np.union1d(new_slots, np.fromiter(journal.reshaped, dtype=np.int64, count=len(journal.reshaped))),
+                         rows[by_vertex], sources[by_vertex], weights[by_vertex], width,
+                         created[expressed], created_in[expressed])
+        moved = np.sort(rows[rows < v_a])
+        count = min(m_a, m_b)
+        moved_in = np.sort(new_slots[(origins != new_slots) & (new_slots < count)])
+        change = object.__new__(cls)
+        for name, value in dict(
+                _sparse=sparse, vertex_count_before=v_a, vertex_count_after=v_b, element_count_before=m_a,
+                element_count_after=m_b, new_vertices=np.arange(v_a, max(v_a, v_b), dtype=np.int64),
+                moved_vertices=moved, removed_elements=np.array(sorted(journal.removed_base), dtype=np.int64),
+                added_elements=sparse.new_slots,
+                reparented_elements=np.concatenate([moved_in, np.arange(count, m_b, dtype=np.int64)]),
+                touched_vertices=np.concatenate([moved, np.arange(v_a, v_b, dtype=np.int64)]),
+                rewired_elements=np.array(sorted(t for t in journal.rewired if t < count), dtype=np.int64)).items():
+            object.__setattr__(change, name, value)
+        return change
+
+    def __getattr__(self, name: str):
+        sparse = self.__dict__.get("_sparse")
+        if name not in self._DENSE or sparse is None:
+            raise AttributeError(name)
+        v_b, m_b = self.vertex_count_after, self.element_count_after
+        sources = np.repeat(np.arange(v_b, dtype=np.int64)[:, None], sparse.width, axis=1)
+        weights = np.zeros((v_b, sparse.width))
+        weights[:, 0] = 1.0
+        sources[sparse.rows], weights[sparse.rows] = sparse.row_sources, sparse.row_weights
+        parent_element = np.full(v_b, -1, dtype=np.int64)
+        parent_element[sparse.created] = sparse.created_in
+        element_parent = np.arange(m_b, dtype=np.int64)
+        element_parent[sparse.new_slots] = sparse.new_slot_origins
+        rest_changed = np.zeros(m_b, dtype=bool)
+        rest_changed[sparse.rest_changed] = True
+        for key, value in zip(self._DENSE, (sources, weights, parent_element, element_parent, rest_changed)):
+            object.__setattr__(self, key, value)
+        return getattr(self, name)
+
+    def vertex_rows(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        sparse = self.__dict__.get("_sparse")
+        if sparse is None:
+            return super().vertex_rows(vertices)
+        vertices = np.asarray(vertices, dtype=np.int64)
+        sources = np.repeat(vertices[:, None], sparse.width, axis=1)
+        weights = np.zeros((len(vertices), sparse.width))
+        weights[:, 0] = 1.0
+        if len(sparse.rows):
+            at = np.minimum(np.searchsorted(sparse.rows, vertices), len(sparse.rows) - 1)
+            hit = sparse.rows[at] == vertices
+            sources[hit], weights[hit] = sparse.row_sources[at[hit]], sparse.row_weights[at[hit]]
+        return sources, weights
+
+    def element_parents(self, elements: np.ndarray) -> np.ndarray:
+        sparse = self.__dict__.get("_sparse")
+        if sparse is None:
+            return super().element_parents(elements)
+        elements = np.asarray(elements, dtype=np.int64)
+        if not len(sparse.new_slots):
+            return elements.copy()
+        at = np.minimum(np.searchsorted(sparse.new_slots, elements), len(sparse.new_slots) - 1)
+        return np.where(sparse.new_slots[at] == elements, sparse.new_slot_origins[at], elements)
+
+    def rest_changed_elements(self) -> np.ndarray:
+        sparse = self.__dict__.get("_sparse")
+        return super().rest_changed_elements() if sparse is None else sparse.rest_changed
 
 
 def compose(first: TopologyChange, second: TopologyChange) -> TopologyChange:
