@@ -274,6 +274,7 @@ def _reparented(change) -> np.ndarray:
 
 
 def _reparented_rows(change) -> _Reparented:
+    """:func:`_reparented` with the parents of those elements."""
     rows = _reparented(change)
     return _Reparented(change.element_count_after, rows, change.element_parents(rows))
 

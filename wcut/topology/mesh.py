@@ -192,7 +192,7 @@ class TetTopology:
                 vertex_tets[v].add(t)
         # the faces are linked when first read (most of a large mesh's set-up, and a compiled
         # cut never reads them): the first batch of the log, ahead of any replacement
-        self._unlinked_faces.append(([], _NumberedRows(mesh.tets)))
+        self._unlinked_faces.append(([], _NumberedRows(mesh.tets.copy())))
         self.unsewn: set[tuple[int, int, int]] = set()
         self.name = mesh.name
         self._journal: _Journal | None = None
