@@ -815,18 +815,7 @@ class _Journal:
         self.origin[t] = origin
 
     def vertex_from(self, v: int, parents, weights, origin_tet: int) -> None:
-        expr: dict[int, float] = {}
-        expression = self.expression
-        for p, w in zip(parents, weights.tolist()):
-            if w == 0.0:
-                continue
-            of_p = expression.get(p)
-            if of_p is None:  # a vertex of the base mesh: itself with weight 1 (w * 1.0 is w)
-                expr[p] = expr.get(p, 0.0) + w
-            else:
-                for q, wq in of_p.items():
-                    expr[q] = expr.get(q, 0.0) + w * wq
-        expression[v] = expr
+        self.expression[v] = _combined(self.expression, parents, weights.tolist())
         if origin_tet >= 0:
             self.vertex_origin[v] = self.origin.get(origin_tet, origin_tet)
         around = self.topo.vertex_tets[v]
@@ -842,19 +831,27 @@ class _Journal:
                 of_p = expression.get(row[0])
                 expr = {row[0]: 1.0} if of_p is None else dict(of_p)
             else:
-                expr = {}
-                for p, w in zip(row, row_weights):
-                    if p < 0 or w == 0.0:
-                        continue
-                    of_p = expression.get(p)
-                    if of_p is None:
-                        expr[p] = expr.get(p, 0.0) + w
-                    else:
-                        for q, wq in of_p.items():
-                            expr[q] = expr.get(q, 0.0) + w * wq
+                expr = _combined(expression, row, row_weights)
             expression[v] = expr
             if origin_tet >= 0:
                 vertex_origin[v] = origin.get(origin_tet, origin_tet)
+
+
+def _combined(expression: dict[int, dict[int, float]], parents, weights) -> dict[int, float]:
+    """The expression {base vertex: weight} of ``sum weights[i] * parents[i]``, each parent
+    by its own expression in ``expression`` (a vertex of the base mesh: itself with weight
+    1, and w * 1.0 is w); parents -1 and zero weights are skipped."""
+    expr: dict[int, float] = {}
+    for p, w in zip(parents, weights):
+        if p < 0 or w == 0.0:
+            continue
+        of_p = expression.get(p)
+        if of_p is None:
+            expr[p] = expr.get(p, 0.0) + w
+        else:
+            for q, wq in of_p.items():
+                expr[q] = expr.get(q, 0.0) + w * wq
+    return expr
 
 
 def _closest_on_triangles(p, a, b, c) -> tuple[np.ndarray, np.ndarray]:
