@@ -42,6 +42,30 @@ def _padded_rows(expressions: list[dict[int, float]], lengths: np.ndarray, width
     return sources, weights
 
 
+def _journal_vertices(journal) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
+    """The journal's expressed vertices (R,) with their sources and weights (R, width), the
+    width (at least 4), and the created vertices with the base slots they were created in
+    (those expressed), all in the journal's order."""
+    expressions = list(journal.expression.values())
+    rows = np.fromiter(journal.expression, dtype=np.int64, count=len(expressions))
+    lengths = np.fromiter(map(len, expressions), dtype=np.int64, count=len(expressions))
+    width = max(4, int(lengths.max(initial=0)))
+    sources, weights = _padded_rows(expressions, lengths, width)
+    created = np.fromiter(journal.vertex_origin.keys(), dtype=np.int64, count=len(journal.vertex_origin))
+    created_in = np.fromiter(journal.vertex_origin.values(), dtype=np.int64, count=len(created))
+    expressed = np.isin(created, rows)
+    return rows, sources, weights, width, created[expressed], created_in[expressed]
+
+
+def _slot_hints(journal, new_slots: np.ndarray, origins: np.ndarray, count_after: int) -> dict:
+    """The reparented and rewired elements of a change whose slots are the elements' indices
+    before and after (``new_slots`` and the base slots they lie in, ``origins``)."""
+    count = min(len(journal.base_slots), count_after)
+    moved_in = np.sort(new_slots[(origins != new_slots) & (new_slots < count)])
+    return {"reparented_elements": np.concatenate([moved_in, np.arange(count, count_after, dtype=np.int64)]),
+            "rewired_elements": np.array(sorted(t for t in journal.rewired if t < count), dtype=np.int64)}
+
+
 @dataclass(frozen=True)
 class TopologyChange:
     """How mesh B (after) derives from mesh A (before); indices are compact mesh indices.
@@ -138,10 +162,7 @@ class TopologyChange:
         if len(slots) == topo.slot_count:  # every slot lives: no gathers over the whole mesh
             element_parent, rest_changed, added = index(origin), added_mask | reshaped, np.flatnonzero(added_mask)
             if len(base_slots) == 0 or base_slots[-1] == len(base_slots) - 1:  # nor before: a slot is its index
-                count = min(len(base_slots), len(slots))
-                moved_in = np.sort(new_slots[(origin[new_slots] != new_slots) & (new_slots < count)])
-                hints["reparented_elements"] = np.concatenate([moved_in, np.arange(count, len(slots), dtype=np.int64)])
-                hints["rewired_elements"] = np.array(sorted(t for t in journal.rewired if t < count), dtype=np.int64)
+                hints = _slot_hints(journal, new_slots, origin[new_slots], len(slots))
         else:
             element_parent = index(origin[slots])
             rest_changed = added_mask[slots] | reshaped[slots]
@@ -149,22 +170,14 @@ class TopologyChange:
         removed = index(np.array(sorted(journal.removed_base), dtype=np.int64))
 
         v_a, v_b = journal.base_vertex_count, topo.vertex_count
-        expressions = list(journal.expression.values())
-        rows = np.fromiter(journal.expression, dtype=np.int64, count=len(expressions))  # expressed vertices
-        lengths = np.fromiter(map(len, expressions), dtype=np.int64, count=len(expressions))
-        width = max(4, int(lengths.max(initial=0)))
+        rows, row_sources, row_weights, width, created, created_in = _journal_vertices(journal)
         identity = np.arange(v_b, dtype=np.int64) if journal.vertex_renumber is None else journal.vertex_renumber
         sources = np.repeat(identity[:, None], width, axis=1)
         weights = np.zeros((v_b, width))
         weights[:, 0] = 1.0
-        if expressions:
-            sources[rows], weights[rows] = _padded_rows(expressions, lengths, width)
+        sources[rows], weights[rows] = row_sources, row_weights
         parent_element = np.full(v_b, -1, dtype=np.int64)
-        if journal.vertex_origin:
-            created = np.fromiter(journal.vertex_origin.keys(), dtype=np.int64, count=len(journal.vertex_origin))
-            origins = np.fromiter(journal.vertex_origin.values(), dtype=np.int64, count=len(created))
-            expressed = np.isin(created, rows)
-            parent_element[created[expressed]] = index(origins[expressed])
+        parent_element[created] = index(created_in)
         moved = np.sort(rows[rows < v_a])
         if journal.vertex_renumber is None:
             hints["touched_vertices"] = np.concatenate([moved, np.arange(v_a, v_b, dtype=np.int64)])
@@ -214,32 +227,20 @@ class _JournalChange(TopologyChange):
         v_a, v_b, m_a, m_b = journal.base_vertex_count, topo.vertex_count, len(journal.base_slots), topo.slot_count
         new_slots = np.fromiter(journal.origin.keys(), dtype=np.int64, count=len(journal.origin))
         origins = np.fromiter(journal.origin.values(), dtype=np.int64, count=len(new_slots))
-        expressions = list(journal.expression.values())
-        rows = np.fromiter(journal.expression, dtype=np.int64, count=len(expressions))
-        lengths = np.fromiter(map(len, expressions), dtype=np.int64, count=len(expressions))
-        width = max(4, int(lengths.max(initial=0)))
-        sources, weights = _padded_rows(expressions, lengths, width) if expressions else \
-            (np.zeros((0, width), dtype=np.int64), np.zeros((0, width)))
-        created = np.fromiter(journal.vertex_origin.keys(), dtype=np.int64, count=len(journal.vertex_origin))
-        created_in = np.fromiter(journal.vertex_origin.values(), dtype=np.int64, count=len(created))
-        expressed = np.isin(created, rows)
+        rows, sources, weights, width, created, created_in = _journal_vertices(journal)
         by_slot, by_vertex = np.argsort(new_slots), np.argsort(rows)
         sparse = _Sparse(new_slots[by_slot], origins[by_slot],
                          np.union1d(new_slots, np.fromiter(journal.reshaped, dtype=np.int64, count=len(journal.reshaped))),
-                         rows[by_vertex], sources[by_vertex], weights[by_vertex], width,
-                         created[expressed], created_in[expressed])
+                         rows[by_vertex], sources[by_vertex], weights[by_vertex], width, created, created_in)
         moved = np.sort(rows[rows < v_a])
-        count = min(m_a, m_b)
-        moved_in = np.sort(new_slots[(origins != new_slots) & (new_slots < count)])
         change = object.__new__(cls)
         for name, value in dict(
                 _sparse=sparse, vertex_count_before=v_a, vertex_count_after=v_b, element_count_before=m_a,
                 element_count_after=m_b, new_vertices=np.arange(v_a, max(v_a, v_b), dtype=np.int64),
                 moved_vertices=moved, removed_elements=np.array(sorted(journal.removed_base), dtype=np.int64),
                 added_elements=sparse.new_slots,
-                reparented_elements=np.concatenate([moved_in, np.arange(count, m_b, dtype=np.int64)]),
                 touched_vertices=np.concatenate([moved, np.arange(v_a, v_b, dtype=np.int64)]),
-                rewired_elements=np.array(sorted(t for t in journal.rewired if t < count), dtype=np.int64)).items():
+                **_slot_hints(journal, new_slots, origins, m_b)).items():
             object.__setattr__(change, name, value)
         return change
 
