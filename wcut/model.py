@@ -221,6 +221,15 @@ def _spare_rows(count: int) -> int:
     return count // 8 + 256
 
 
+def _spare_buffer(old: np.ndarray, count: int, dtype) -> np.ndarray:
+    """A new buffer of ``count`` rows and spare ones, of ``dtype``, its first rows ``old``'s
+    (as many as it has, up to ``count``)."""
+    buf = np.empty((count + _spare_rows(count),) + old.shape[1:], dtype=dtype)
+    k = min(len(old), count)
+    buf[:k] = old[:k]
+    return buf
+
+
 class _Rows:
     """The host arrays a rebuild writes: each the first rows of a buffer (kept in
     ``buffers``), the old object's own when ``in_place`` and it has room (its first rows then
@@ -233,9 +242,7 @@ class _Rows:
     def __call__(self, name: str, old: np.ndarray, count: int) -> np.ndarray:
         buf = self.old_buffers.get(name)
         if buf is None or len(buf) < count:
-            buf = np.empty((count + _spare_rows(count),) + old.shape[1:], dtype=old.dtype)
-            k = min(len(old), count)
-            buf[:k] = old[:k]
+            buf = _spare_buffer(old, count, old.dtype)
         self.buffers[name] = buf
         return buf[:count]
 
@@ -331,17 +338,8 @@ def _device_array(host, dtype, device, buffers: dict | None = None, name: str = 
     buf = buffers.get(name)
     if buf is None or getattr(host, "base", None) is not buf or buf.dtype != scalar:
         host = np.asarray(host)
-        buf = buffers[name] = np.empty((len(host) + _spare_rows(len(host)),) + host.shape[1:], dtype=scalar)
-        buf[: len(host)] = host
+        buf = buffers[name] = _spare_buffer(host, len(host), scalar)
     return wp.array(buf[: len(host)], dtype=dtype, device=device, copy=False)
-
-
-def _host_buffer(host: np.ndarray, buffers: dict, name: str) -> np.ndarray:
-    """``host`` (float64) copied to the start of a buffer with spare rows, kept in
-    ``buffers[name]`` (a host-only array that :meth:`Model.rebuild` may write in place)."""
-    buf = buffers[name] = np.empty((len(host) + _spare_rows(len(host)),) + host.shape[1:])
-    buf[: len(host)] = host
-    return buf[: len(host)]
 
 
 def _is_shell(mesh) -> bool:
@@ -540,8 +538,9 @@ class Model:
         self._set_arrays(mesh, rest, tets, mass, load_mass, poses, rest_volume, stiffness, fixed_mask,
                          (rho, E, nu), attachments)
         if getattr(mesh, "order", 1) == 1:  # float64, unrounded: what a rebuild updates the masses from
-            self._mass_sums, self._volumes = (_host_buffer(host, self._buffers, name)
-                                              for name, host in (("mass_sums", mass), ("volumes", volume)))
+            rows = _Rows()
+            self._mass_sums, self._volumes = rows("mass_sums", mass, N), rows("volumes", volume, M)
+            self._buffers.update(rows.buffers)  # host-only: a rebuild in place writes them
 
     def _set_arrays(self, mesh, rest, tets, mass, load_mass, poses, rest_volume, stiffness, fixed_mask, material,
                     attachments: Attachments, buffers: dict | None = None) -> None:
