@@ -537,13 +537,18 @@ class Cutter:
     def _cut_compiled(self, surface: CutSurface, sampling: _Sampling, plan: "_Plan | None", marked: set[int],
                       stats: CutStats) -> None:
         """Steps 3-6 by the compiled operators on one :class:`TetRegion`, written back once:
-        the crossed elements and the elements around the vertices already on the cut. That is
-        everything they touch: each face or edge the plan names belongs to a crossed element
-        with a crossed edge, and every element around a crossed edge is crossed; a face to
+        the crossed elements, every element around a crossed edge and the elements around the
+        vertices already on the cut. That is everything they touch: each face or edge the plan
+        names has a crossed edge, and a general flip re-triangulates the whole ring of its edge
+        (which holds elements that are not cut yet where a progressive cut waits for the blade
+        to pass through them; a plane crosses every element around a crossed edge); a face to
         open has three vertices on the cut, each one already on it or made inside the crossed
         elements, and every element around them is in the region."""
         topo = self.topology
         slots = set(sampling.cut_slots) if plan is not None else set()
+        if plan is not None:
+            for (a, b), _ in plan.edges:
+                slots |= topo.edge_tets(a, b)
         for v in marked:
             slots |= topo.vertex_tets[v]
         region = TetRegion(topo, sorted(slots))
