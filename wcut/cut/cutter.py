@@ -545,8 +545,9 @@ class Cutter:
         open has three vertices on the cut, each one already on it or made inside the crossed
         elements, and every element around them is in the region."""
         topo = self.topology
-        slots = set(sampling.cut_slots) if plan is not None else set()
+        slots: set[int] = set()
         if plan is not None:
+            slots.update(sampling.cut_slots)
             for (a, b), _ in plan.edges:
                 slots |= topo.edge_tets(a, b)
         for v in marked:
