@@ -282,6 +282,34 @@ def test_progressive_cut_of_a_bent_body_follows_the_blade(epsilon):
     assert np.ptp(topo.rest_positions[n0:, 0]) > 0.01  # at rest, the cut is curved
 
 
+PLATE = beam(8, 8, 1, size=(0.08, 0.08, 0.01))
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+@pytest.mark.parametrize("steps", [1, 2])
+def test_progressive_cut_splits_faces_at_the_blade_s_turns_on_the_cut(compiled, steps):
+    """A blade through a plate along a path with two turns, cut in increments in the rest
+    configuration as the AR pipeline cuts: where the blade turned within a face, the face is
+    split where the fold of the swept surface goes through it, not at the barycentre of its
+    crossings (off the surface, on the chord of the fold), so no edge of the mesh crosses the
+    swept surface once the blade has left the plate. (With the barycentre, one edge did: the
+    elements around it stayed sewn across the cut.)"""
+    path = np.array([[-0.005, 0.0405], [0.0625, 0.0222], [0.0624, 0.0306], [0.085, 0.0369]])
+    points = [(1 - s) * a + s * b for a, b in zip(path, path[1:]) for s in np.arange(steps) / steps] + [path[-1]]
+    topo = TetTopology(PLATE)
+    cutter = Cutter(topo, method="paulus", epsilon=0.1, compiled=compiled)
+    blade = [np.array([[x, y, -0.01], [x, y, 0.02]]) for x, y in points]
+    for before, after in zip(blade, blade[1:]):
+        cutter.cut(strip(before, after), progressive=True, rest=True)
+        check_topology(topo, PLATE.volumes().sum())
+    swept = TriangleSurface(np.asarray(cutter._swept_points), np.concatenate(cutter._swept_triangles))
+    mesh = topo.to_mesh()
+    edges = np.unique(np.sort(mesh.tets[:, [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]].reshape(-1, 2), axis=1),
+                      axis=0)
+    t, _ = swept.crossings(mesh.vertices[edges[:, 0]], mesh.vertices[edges[:, 1]], cutter.tolerance)
+    assert not np.isfinite(t).any(), mesh.vertices[edges[np.isfinite(t)]]
+
+
 def _paraboloid(cells: int = 30, x: float = BLADE_X, curvature: float = 10.0) -> TriangleSurface:
     """x = x0 + c ((y - 0.02)^2 + (z - 0.02)^2) over y, z in [-0.01, 0.05] m: a curved sheet
     across the whole beam, bulging by up to 9 mm."""
@@ -454,7 +482,7 @@ def _progressive_bent_cut(cells, x: float, tilt: float, steps: int, method: str,
 #: number the elements of successive cuts otherwise, and so cut otherwise).
 CRUMBLY = {
     "snap": ((8, 2, 2), 0.0715356973566653, 0.007408143595993705, 5, "snap", 0.0),
-    "paulus": ((8, 2, 2), 0.04946627206918131, 0.010740679955850173, 11, "paulus", 0.0),
+    "paulus": ((8, 2, 2), 0.08118216247002567, 0.01801854785303741, 4, "paulus", 0.0),
     "bielser": ((8, 2, 2), 0.07441974673767819, -0.01463833211011341, 7, "bielser", 0.1),
 }
 

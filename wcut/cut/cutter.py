@@ -723,6 +723,10 @@ class Cutter:
 
     def _onto_surface(self, surface: CutSurface, corners: np.ndarray, weights: np.ndarray,
                       plane: tuple | None = None) -> np.ndarray:
+        return self._moved_onto_surface(surface, corners, weights, plane)[0]
+
+    def _moved_onto_surface(self, surface: CutSurface, corners: np.ndarray, weights: np.ndarray,
+                            plane: tuple | None = None) -> tuple[np.ndarray, bool]:
         """Barycentric weights over ``corners`` (4 of an element or 3 of a face, m) of the
         point ``weights @ corners`` moved onto a curved S within the element or face.
         ``plane``: S's tangent plane (point, unit normal) at that point when known.
@@ -732,7 +736,8 @@ class Cutter:
         projected onto S's nearest plane (within the face's plane for a face) a few times.
         The weights come back unchanged where S is nearly parallel to the face or the move
         would halve the point's smallest weight (the operators' quality check would refuse
-        flatter elements)."""
+        flatter elements). :meth:`_moved_onto_surface` also tells whether the point is on S
+        (within the tolerance of S's nearest plane)."""
         p = weights @ corners
         if plane is not None:
             origin, normal = plane
@@ -742,7 +747,7 @@ class Cutter:
             origin, normal = (a[0] for a in surface.tangent_planes(p[None]))
         gap = float(normal @ (p - origin))
         if abs(gap) <= self.tolerance:
-            return weights  # on S already (S flat here)
+            return weights, True  # on S already (S flat here)
         span = None
         if len(corners) == 3:
             span = np.cross(corners[1] - corners[0], corners[2] - corners[0])
@@ -756,11 +761,40 @@ class Cutter:
             step = normal if span is None else normal - (normal @ span) * span
             along = float(normal @ step)
             if along < 0.1:
-                return weights
+                return weights, False
             p = p - gap / along * step
         else:
-            return weights
+            return weights, False
         moved = barycentric(p, corners)
+        return (moved, True) if moved.min() >= 0.5 * weights.min() else (weights, False)
+
+    def _fold_point(self, surface: CutSurface, corners: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Weights over a face's ``corners`` (3, 3) (m) of the point where a fold of S goes
+        through the face, nearest to ``weights @ corners``; ``weights`` where none does.
+
+        Where the blade turned within the face (the joint of two increments of a progressive
+        cut), S meets the face along two segments joined at the fold, and the barycentre of the
+        face's crossings lies on the chord between them, off S: no projection onto one of S's
+        planes puts it on S. The fold point, where an edge of S's triangulation pierces the face,
+        is on both; a split there leaves every new edge of the face on S or uncrossed, where a
+        split off S leaves edges crossing the cut, and the elements on them sewn across it."""
+        if not isinstance(surface, TriangleSurface):
+            return weights
+        tol = self.tolerance
+        edges = np.unique(np.sort(surface.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        a, b = surface.vertices[edges[:, 0]], surface.vertices[edges[:, 1]]
+        lower, upper = corners.min(axis=0) - tol, corners.max(axis=0) + tol
+        near = np.all((np.minimum(a, b) <= upper) & (np.maximum(a, b) >= lower), axis=1)
+        if not near.any():
+            return weights
+        a, b = a[near], b[near]
+        t, _ = TriangleSurface(corners, np.array([[0, 1, 2]])).crossings(a, b, tol)
+        hit = np.isfinite(t)
+        if not hit.any():
+            return weights
+        points = a[hit] + t[hit, None] * (b[hit] - a[hit])
+        best = points[np.argmin(np.linalg.norm(points - weights @ corners, axis=1))]
+        moved = barycentric(best, corners)
         return moved if moved.min() >= 0.5 * weights.min() else weights
 
     @staticmethod
@@ -804,7 +838,9 @@ class Cutter:
         if len(points) >= 2:  # _mean: np.mean(points, axis=0), without its overhead
             if type(surface) is Plane:  # a mean of points on a plane is on it: nothing to move
                 return np.array(_mean(points)), True
-            return self._onto_surface(surface, self.coordinates()[list(key)], np.array(_mean(points))), True
+            corners = self.coordinates()[list(key)]
+            weights, on = self._moved_onto_surface(surface, corners, np.array(_mean(points)))
+            return (weights if on else self._fold_point(surface, corners, weights)), True
         if not points:
             return None
         return 0.5 * np.asarray(points[0]) + 0.5 / 3.0, False
