@@ -781,7 +781,7 @@ class Cutter:
         if not isinstance(surface, TriangleSurface):
             return weights
         tol = self.tolerance
-        edges = np.unique(np.sort(surface.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        edges, _ = _surface_edges(surface.triangles)
         a, b = surface.vertices[edges[:, 0]], surface.vertices[edges[:, 1]]
         lower, upper = corners.min(axis=0) - tol, corners.max(axis=0) + tol
         near = np.all((np.minimum(a, b) <= upper) & (np.maximum(a, b) >= lower), axis=1)
@@ -1047,10 +1047,15 @@ def _mean(points: list[list[float]]) -> list[float]:
     return [value / count for value in total]
 
 
+def _surface_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(E, 2) sorted vertex pairs of the edges of a triangulated surface, and (E,) the number
+    of its triangles on each."""
+    return np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0, return_counts=True)
+
+
 def _boundary_edges(triangles: np.ndarray) -> np.ndarray:
     """(B, 2) vertex pairs of the edges of a triangulated surface used by one triangle."""
-    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    unique, count = np.unique(edges, axis=0, return_counts=True)
+    unique, count = _surface_edges(triangles)
     return unique[count == 1]
 
 
