@@ -304,8 +304,7 @@ def test_progressive_cut_splits_faces_at_the_blade_s_turns_on_the_cut(compiled, 
         check_topology(topo, PLATE.volumes().sum())
     swept = TriangleSurface(np.asarray(cutter._swept_points), np.concatenate(cutter._swept_triangles))
     mesh = topo.to_mesh()
-    edges = np.unique(np.sort(mesh.tets[:, [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]].reshape(-1, 2), axis=1),
-                      axis=0)
+    edges = mesh.edges()
     t, _ = swept.crossings(mesh.vertices[edges[:, 0]], mesh.vertices[edges[:, 1]], cutter.tolerance)
     assert not np.isfinite(t).any(), mesh.vertices[edges[np.isfinite(t)]]
 
