@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Progressive cuts whose blade turns: how often the cut stays closed (a scan, not a test).
 
-    python tools/cut_turns.py [-o out/cut_turns] [--paths 30] [--turns 1] [--seed 0]
+    python tools/cut_turns.py [-o out/cut_turns] [--paths 40] [--turns 1] [--seed 0]
 
 A vertical blade cuts through a plate of 8 x 8 x 1 cells (80 x 80 x 10 mm) along a random
 path from one side to the other with ``--turns`` turns, as a progressive cut in the rest
@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from wcut.cut import Cutter
-from wcut.cut.surface import TriangleSurface, strip
+from wcut.cut.surface import TriangleSurface, joined, strip
 from wcut.io import atomic_path
 from wcut.mesh import beam
 from wcut.topology import TetTopology, check_topology, connected_components
@@ -75,10 +75,7 @@ def cut_along(path, compiled: bool, increments: int) -> tuple[TetTopology, Trian
         swept.append(increment)
         cutter.cut(increment, progressive=True, rest=True)
         check_topology(topo, plate.volumes().sum())
-    vertices = np.concatenate([s.vertices for s in swept])
-    offsets = np.cumsum([0] + [len(s.vertices) for s in swept[:-1]])
-    triangles = np.concatenate([s.triangles + o for s, o in zip(swept, offsets)])
-    return topo, TriangleSurface(vertices, triangles)
+    return topo, joined(swept)
 
 
 def crossing_edges(mesh, surface: TriangleSurface, tol: float = 1e-9) -> int:
@@ -107,13 +104,14 @@ def scan(count: int, turns: int, seed: int) -> list[dict]:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-o", "--output", default="out/cut_turns", help="output stem (.csv)")
-    parser.add_argument("--paths", type=int, default=30)
+    parser.add_argument("--paths", type=int, default=40)
     parser.add_argument("--turns", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
+    if args.paths < 1 or args.turns < 0:
+        parser.error("--paths must be at least 1 and --turns at least 0")
     rows = scan(args.paths, args.turns, args.seed)
     out = Path(args.output).with_suffix(".csv")
-    out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out) as tmp, open(tmp, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
