@@ -318,6 +318,26 @@ def test_early_stop_equals_running_exactly_that_many_iterations():
     assert fixed.last_cg_iterations == used and 0.0 < fixed.last_relative_residual < 1e-3
 
 
+@pytest.mark.parametrize("chunk", [5, 64, 1000])
+def test_node_kernels_in_chunks_solve_what_one_node_per_thread_solves(chunk, monkeypatch):
+    """The CG's node kernels with ``chunk`` nodes per thread (81 nodes: a short last chunk, or
+    one thread for all) cover every node once: the converged step equals one node per thread's
+    to rounding, in the same iterations."""
+    from wcut import solver as solver_module
+
+    _, model, _ = clamped_beam()
+    ends = {}
+    for size in (1, chunk):
+        monkeypatch.setattr(solver_module, "NODES_PER_CPU_THREAD", size)
+        solver = SolverCorotational(model, cg_iterations=300, cg_tolerance=1e-6)
+        ends[size] = run(model, solver, 3, 0.01).particle_q.numpy(), solver.last_cg_iterations
+        assert solver.last_relative_residual <= 1e-6
+    (one, one_iterations), (chunked, chunked_iterations) = ends[1], ends[chunk]
+    assert abs(one_iterations - chunked_iterations) <= 1
+    np.testing.assert_allclose(chunked, one, atol=1e-7)
+    assert not np.array_equal(chunked, model.particle_q.numpy())  # it moved
+
+
 def test_nothing_to_solve_takes_no_iteration():
     mesh = wcut.beam(2, 1, 1)
     model = Model(mesh, gravity=(0, 0, 0))
