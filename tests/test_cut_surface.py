@@ -602,3 +602,29 @@ def test_triangle_crossings_are_on_the_surface_and_strict(seed, tol):
     np.testing.assert_allclose(np.linalg.norm(n[hit], axis=1), 1.0)
     # The endpoints are on opposite sides of the reported normal's plane at the crossing point.
     assert np.all(np.einsum("ij,ij->i", a[hit] - p, n[hit]) * np.einsum("ij,ij->i", b[hit] - p, n[hit]) < 0)
+
+
+def _v_surface():
+    """Two vertical sheets meeting at x = 0 (a V opening towards +y), 2 m high."""
+    v = np.array([[-1.0, 1.0, -1.0], [-1.0, 1.0, 1.0], [0.0, 0.0, -1.0], [0.0, 0.0, 1.0],
+                  [1.0, 1.0, -1.0], [1.0, 1.0, 1.0]])
+    return TriangleSurface(v, np.array([[0, 2, 1], [1, 2, 3], [2, 4, 3], [3, 4, 5]]))
+
+
+def test_winding_jumps_by_one_across_the_surface_and_not_across_a_fold():
+    surface = _v_surface()
+    h = 0.01
+    a = np.array([[-0.5, 0.5 + h, 0.0],   # inside the V, then across the left sheet
+                  [0.5, 0.5 + h, 0.0],    # inside, across the right sheet
+                  [-0.05, 0.1, 0.0],      # inside near the fold, to inside on the other side
+                  [0.0, -0.05, 0.0],      # outside below the fold, to outside left of it
+                  [-0.5, 0.5 + h, 0.0]])  # inside, to inside further up
+    b = np.array([[-0.5, 0.5 - h, 0.0], [0.5, 0.5 - h, 0.0], [0.05, 0.1, 0.0], [-0.1, 0.0, 0.0],
+                  [-0.2, 0.6, 0.0]])
+    jumps = surface.winding_jumps(a, b, np.full(5, 10.0))
+    np.testing.assert_allclose(np.abs(jumps[:2]), 1.0, atol=0.02)
+    assert np.abs(jumps[2:]).max() < 0.1  # smooth on one side (faster near the fold), no jump
+    assert np.sign(jumps[0]) == np.sign(jumps[1])  # both sheets face the same way
+    # far triangles left out: a radius that reaches only the near sheet keeps the jump
+    near = surface.winding_jumps(a[:1], b[:1], np.array([0.3]))
+    assert abs(abs(near[0]) - 1.0) < 0.1

@@ -22,8 +22,10 @@ The ``paulus`` method (thesis 5.1):
 5. *general flips* (figure 5.3) of every crossed edge, which leaves triangles on the surface;
    a boundary edge is flipped only where its two boundary faces are coplanar (the volume is
    kept), else *bisected* at the crossing (5.1.2), as is any edge whose flip is refused;
-6. *disconnection* (5.1.3): faces whose three vertices are on the cut are unsewn and every
-   vertex on an unsewn face is duplicated once per fan of elements.
+6. *disconnection* (5.1.3): faces whose three vertices are on the cut, and which lie on it
+   (on a plane: their centre is; on a triangulated surface: the elements they join are on
+   opposite sides, by its winding number), are unsewn and every vertex on an unsewn face is
+   duplicated once per fan of elements.
 
 Baselines (thesis 5.2): ``snap`` moves the nearest vertex of every crossed edge onto the
 surface, then disconnects; ``delete`` removes every crossed element; ``bielser`` is the
@@ -78,6 +80,12 @@ QUALITY_DROP = 0.1
 #: it differ in normal by less than this (degrees): not a feature (thesis 5.1.2). Otherwise the
 #: cut would take a sliver off its corner. Flat boundaries and straight creases need no angle.
 FEATURE_ANGLE = 30.0
+
+#: Triangles of S within this many face radii of a face decide whether the face separates the
+#: elements it joins (:meth:`Cutter._on_surface`): far enough that cutting S off there changes
+#: the jump of its winding number between the two centroids by a few per cent, near enough to stay
+#: local.
+WINDING_REACH = 8.0
 
 #: Snapping threshold (relative) applied even when ``epsilon`` is smaller: crossings closer
 #: to a vertex than this would only make needle elements (thesis 5.1.4).
@@ -656,7 +664,8 @@ class Cutter:
         if not len(keys):
             return [], keys
         x = (arrays.vertex_rest if self._rest else arrays.vertex_q).numpy()[: arrays.vertex_count]
-        near = self._on_surface(surface, x[keys])
+        sides = arrays.tet_indices.numpy()[np.stack([live[rows], neighbors[rows, ks]], axis=1)]
+        near = self._on_surface(surface, x[keys], x[sides].mean(axis=2))
         rows, ks, keys = rows[near], ks[near], keys[near]
         faces = list(zip(live[rows].tolist(), neighbors[rows, ks].tolist()))  # (t, n), t < n
         opened = set(self._keep_attached(faces, _RegionFaces(arrays)))
@@ -862,7 +871,9 @@ class Cutter:
         keys = [key for key in sorted(faces) if len(topo.face_tets.get(key, ())) == 2]
         opened = []
         if keys:
-            near = self._on_surface(surface, self.coordinates()[np.asarray(keys)])
+            x = self.coordinates()
+            sides = np.array([[topo.tet(t) for t in sorted(topo.face_tets[key])] for key in keys])
+            near = self._on_surface(surface, x[np.asarray(keys)], x[sides].mean(axis=2))
             opened = [key for key, ok in zip(keys, near.tolist()) if ok]
         opened = self._keep_attached(opened, _TopologyFaces(topo))
         for key in opened:
@@ -874,10 +885,23 @@ class Cutter:
             self.wound_vertices.update(copies, (v,))
         sew_unopened(topo)
 
-    def _on_surface(self, surface: CutSurface, corners: np.ndarray) -> np.ndarray:
+    def _on_surface(self, surface: CutSurface, corners: np.ndarray, centroids: np.ndarray) -> np.ndarray:
         """(F,) whether each face, with ``corners`` (F, 3, 3) (m) all on the cut, lies on the
-        surface: a face with three vertices on the cut may still span across it (its centre
-        is off)."""
+        surface: a face with three vertices on the cut may still span across it.
+
+        On a plane, a face spans across when its centre is off. On a triangulated S, whose
+        faces are chords where S bends or folds, a face opens when it separates the two
+        elements it joins, whose ``centroids`` (F, 2, 3) (m) lie on opposite sides of S: the
+        local winding number of S (:meth:`TriangleSurface.winding_jumps`, over the triangles
+        within :data:`WINDING_REACH` face radii) changes by more than a half between them. A
+        face across the inner corner of a fold (vertices on both sheets, centre off S) then
+        opens, and one between two sheets, with both elements on the same side, stays sewn,
+        whatever the distance of their centres. A flat element lying in S stays with the side
+        its centroid is on (the faces to the other side open) instead of coming loose."""
+        if isinstance(surface, TriangleSurface):
+            size = np.linalg.norm(corners - corners.mean(axis=1)[:, None], axis=2).max(axis=1)
+            jumps = surface.winding_jumps(centroids[:, 0], centroids[:, 1], WINDING_REACH * size)
+            return np.abs(jumps) > 0.5
         centre = corners.mean(axis=1)
         reach = 0.25 * np.linalg.norm(corners - centre[:, None], axis=2).max(axis=1) + self.tolerance
         return surface.distance(centre, float(reach.max())) <= reach

@@ -355,6 +355,31 @@ class TriangleSurface(CutSurface):
         normal[seg[first]] = self.normals[j[first]]
         return t, normal
 
+    def winding_jumps(self, a, b, radius) -> np.ndarray:
+        """(M,) the change of the local winding number of S from ``a[i]`` to ``b[i]`` (M, 3) (m):
+        the signed solid angles (over 4 pi, Van Oosterom and Strackee's formula) that the
+        triangles within ``radius`` (M,) (m) of the pair's midpoint subtend at ``b`` less at
+        ``a``. Across S the winding number jumps by one and elsewhere it varies smoothly, so
+        the change is about +-1 for points on either side of S, near S and well inside its
+        boundary, and about 0 for points on the same side, even on either side of a fold
+        (two sheets). Far triangles subtend nearly the same angle at both points; leaving
+        them out bounds the cost. Points on S get an angle of either side."""
+        a, b = _array(a, (-1, 3), "points"), _array(b, (-1, 3), "points")
+        jumps = np.zeros(len(a))
+        if len(a) == 0:
+            return jumps
+        rows, j = self._near_pairs(0.5 * (a + b), np.broadcast_to(np.asarray(radius, float), (len(a),)))
+        v = self._v[j]
+
+        def solid_angles(p):
+            c0, c1, c2 = v[:, 0] - p, v[:, 1] - p, v[:, 2] - p
+            l0, l1, l2 = (np.linalg.norm(c, axis=1) for c in (c0, c1, c2))
+            den = l0 * l1 * l2 + _dot(c0, c1) * l2 + _dot(c0, c2) * l1 + _dot(c1, c2) * l0
+            return 2.0 * np.arctan2(_dot(c0, _cross(c1, c2)), den)
+
+        np.add.at(jumps, rows, solid_angles(b[rows]) - solid_angles(a[rows]))
+        return jumps / (4.0 * np.pi)
+
     def extension_crossings(self, a, b, tol: float) -> tuple[np.ndarray, np.ndarray]:
         """Crossings with, per segment, the plane of the triangle nearest its midpoint.
 
