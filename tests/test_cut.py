@@ -7,6 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import load_tool
 from wcut.cut import METHODS, CutError, Cutter, Plane, Polygon, SweptBlade, TriangleSurface
 from wcut.cut.cutter import CRUMB_ELEMENTS, CRUMB_QUALITY, CRUMB_VOLUME, CURVED_HOLD, REGULAR_QUALITY
 from wcut.cut.surface import strip
@@ -640,16 +641,7 @@ def test_a_face_across_the_inner_corner_of_a_fold_opens():
     centre's distance (a quarter of the radius) kept it sewn and the plate whole."""
     path = [(-0.005, 0.03999583254750588), (0.037018857735789196, 0.06272952468453687),
             (0.085, 0.03700914499396302)]
-    plate = beam(8, 8, 1, size=(0.08, 0.08, 0.01))
-    topo = TetTopology(plate)
-    cutter = Cutter(topo, method="paulus", epsilon=0.1, compiled=False)
-    stops = [np.asarray(path[0])]
-    for a, b in zip(path, path[1:]):
-        stops += [(1 - s) * np.asarray(a) + s * np.asarray(b) for s in (0.5, 1.0)]
-    for p, q in zip(stops, stops[1:]):
-        cutter.cut(strip(*(np.array([[x, y, -0.01], [x, y, 0.02]]) for x, y in (p, q))), progressive=True,
-                   rest=True)
-        check_topology(topo, plate.volumes().sum())
+    topo, _ = load_tool("cut_turns").cut_along(path, compiled=False, increments=2)  # checked after each
     mesh = topo.to_mesh()
     volumes = np.bincount(connected_components(mesh), weights=mesh.volumes())
     assert len(volumes) == 2 and volumes.min() > 0.3 * volumes.sum()

@@ -664,8 +664,11 @@ class Cutter:
         if not len(keys):
             return [], keys
         x = (arrays.vertex_rest if self._rest else arrays.vertex_q).numpy()[: arrays.vertex_count]
-        sides = arrays.tet_indices.numpy()[np.stack([live[rows], neighbors[rows, ks]], axis=1)]
-        near = self._on_surface(surface, x[keys], x[sides].mean(axis=2))
+        centroids = None
+        if isinstance(surface, TriangleSurface):
+            sides = np.stack([live[rows], neighbors[rows, ks]], axis=1)
+            centroids = x[arrays.tet_indices.numpy()[sides]].mean(axis=2)
+        near = self._on_surface(surface, x[keys], centroids)
         rows, ks, keys = rows[near], ks[near], keys[near]
         faces = list(zip(live[rows].tolist(), neighbors[rows, ks].tolist()))  # (t, n), t < n
         opened = set(self._keep_attached(faces, _RegionFaces(arrays)))
@@ -872,8 +875,10 @@ class Cutter:
         opened = []
         if keys:
             x = self.coordinates()
-            sides = np.array([[topo.tet(t) for t in sorted(topo.face_tets[key])] for key in keys])
-            near = self._on_surface(surface, x[np.asarray(keys)], x[sides].mean(axis=2))
+            centroids = None
+            if isinstance(surface, TriangleSurface):
+                centroids = x[[[topo.tet(t) for t in sorted(topo.face_tets[key])] for key in keys]].mean(axis=2)
+            near = self._on_surface(surface, x[np.asarray(keys)], centroids)
             opened = [key for key, ok in zip(keys, near.tolist()) if ok]
         opened = self._keep_attached(opened, _TopologyFaces(topo))
         for key in opened:
@@ -885,19 +890,20 @@ class Cutter:
             self.wound_vertices.update(copies, (v,))
         sew_unopened(topo)
 
-    def _on_surface(self, surface: CutSurface, corners: np.ndarray, centroids: np.ndarray) -> np.ndarray:
+    def _on_surface(self, surface: CutSurface, corners: np.ndarray, centroids: np.ndarray | None) -> np.ndarray:
         """(F,) whether each face, with ``corners`` (F, 3, 3) (m) all on the cut, lies on the
         surface: a face with three vertices on the cut may still span across it.
 
-        On a plane, a face spans across when its centre is off. On a triangulated S, whose
-        faces are chords where S bends or folds, a face opens when it separates the two
-        elements it joins, whose ``centroids`` (F, 2, 3) (m) lie on opposite sides of S: the
-        local winding number of S (:meth:`TriangleSurface.winding_jumps`, over the triangles
-        within :data:`WINDING_REACH` face radii) changes by more than a half between them. A
-        face across the inner corner of a fold (vertices on both sheets, centre off S) then
-        opens, and one between two sheets, with both elements on the same side, stays sewn,
-        whatever the distance of their centres. A flat element lying in S stays with the side
-        its centroid is on (the faces to the other side open) instead of coming loose."""
+        On a plane, a face spans across when its centre is off (``centroids`` is then unused).
+        On a triangulated S, whose faces are chords where S bends or folds, a face opens when it
+        separates the two elements it joins, whose ``centroids`` (F, 2, 3) (m) lie on opposite
+        sides of S: the local winding number of S (:meth:`TriangleSurface.winding_jumps`, over
+        the triangles within :data:`WINDING_REACH` face radii) changes by more than a half
+        between them. A face across the inner corner of a fold (vertices on both sheets, centre
+        off S) then opens, and one between two sheets, with both elements on the same side,
+        stays sewn, whatever the distance of their centres. A flat element lying in S stays
+        with the side its centroid is on (the faces to the other side open) instead of coming
+        loose."""
         if isinstance(surface, TriangleSurface):
             size = np.linalg.norm(corners - corners.mean(axis=1)[:, None], axis=2).max(axis=1)
             jumps = surface.winding_jumps(centroids[:, 0], centroids[:, 1], WINDING_REACH * size)
