@@ -212,8 +212,10 @@ class Cutter:
             mean_edge_length = topology.to_mesh().mean_edge_length()
         self.mean_edge_length = float(mean_edge_length)
         self._margin = 2.0 * self._longest_edge()
-        #: vertices this cutter inserted by 1-4 splits: one on the surface serves again as the
-        #: split vertex of its element's pieces when a later cut reaches them (thesis 5.1.1)
+        #: vertices this cutter inserted by 1-4 splits, and their copies when a cut duplicated
+        #: them: one on the surface serves again as the split vertex of its element's pieces when
+        #: a later cut reaches them (thesis 5.1.1). Every copy counts: which copy keeps the
+        #: number differs between the compiled and the Python disconnection.
         self.split_vertices: set[int] = set()
         #: vertices on the faces this cutter opened, and their copies: the lips of the wound
         #: coincide at rest, so snapping must not slide one of them off its plane alone
@@ -574,8 +576,9 @@ class Cutter:
         self.split_vertices.update(global_of[splits].tolist())
         if copies:
             new = np.arange(first_copy, first_copy + copies)
-            self.wound_vertices.update(global_of[new].tolist(),
-                                       global_of[arrays.vertex_parents.numpy()[new, 0]].tolist())
+            parents = global_of[arrays.vertex_parents.numpy()[new, 0]].tolist()
+            self.wound_vertices.update(global_of[new].tolist(), parents)
+            self.split_vertices.update(c for c, v in zip(global_of[new].tolist(), parents) if v in self.split_vertices)
         stats.unsewn_faces += len(faces)
         stats.duplicated_vertices += copies
 
@@ -888,6 +891,8 @@ class Cutter:
             copies = duplicate_vertex(topo, v)
             stats.duplicated_vertices += len(copies)
             self.wound_vertices.update(copies, (v,))
+            if v in self.split_vertices:
+                self.split_vertices.update(copies)
         sew_unopened(topo)
 
     def _on_surface(self, surface: CutSurface, corners: np.ndarray, centroids: np.ndarray | None) -> np.ndarray:
