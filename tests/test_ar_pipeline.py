@@ -15,7 +15,7 @@ from wcut.ar.capture import Capture
 from wcut.ar.pipeline import run_ar
 from wcut.ar.synth import synthesize
 from wcut.cli import main
-from wcut.errors import CaptureError
+from wcut.errors import CaptureError, SceneError
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "ar" / "band_cut_side.toml"
 FRAMES = 45  # half of the scene: the slit is open enough to be seen
@@ -145,6 +145,21 @@ def test_synth_command_and_its_errors(tmp_path, capsys):
     assert main(["synth", str(SCENE), "-o", str(tmp_path / "cap"), "--frames", "2", "--quiet"]) == 0
     assert "cut frames: 2" in capsys.readouterr().out
     assert len(list((tmp_path / "cap" / "frames").glob("*.png"))) == 3
+
+
+def test_another_texture_seed_renders_the_same_truth_otherwise(tmp_path):
+    synthesize(SCENE, tmp_path / "own", frames=2, progress=False)
+    synthesize(SCENE, tmp_path / "other", frames=2, progress=False, texture_seed=4)
+    own, other = Capture(tmp_path / "own"), Capture(tmp_path / "other")
+    (own_mask, own_truth), (other_mask, other_truth) = own.truth_frame(2), other.truth_frame(2)
+    assert np.array_equal(own_mask, other_mask)
+    assert np.array_equal(own_truth["surface_points"], other_truth["surface_points"])
+    first = [cv2.imread(str(c.directory / "frames" / "0000.png")).astype(int) for c in (own, other)]
+    on_object = own.truth_frame(0)[0] > 0
+    assert np.array_equal(first[0][~on_object], first[1][~on_object])  # the same background
+    assert np.abs(first[0] - first[1])[on_object].mean() > 10.0  # another pattern on the object
+    with pytest.raises(SceneError, match="texture_seed"):
+        synthesize(SCENE, tmp_path / "bad", frames=1, progress=False, texture_seed=4.5)
 
 
 @pytest.mark.parametrize("scene", sorted((SCENE.parent).glob("*.toml")), ids=lambda p: p.stem)

@@ -31,3 +31,22 @@ def test_what_the_results_must_show():
             dict(scene="band_control", mode="no-cut", dice_final=0.99, cuts_detected=0)]
     problems = tool.failures(rows)
     assert len(problems) == 2 and problems[0].startswith("b:") and "band_control" in problems[1]
+
+
+def test_texture_seeds_run_each_scene_with_each_rendering(tmp_path):
+    tool = load_tool("ar_results")
+    scene = tool.ROOT / "scenes" / "ar" / "band_cut_side.toml"
+    code = tool.main([str(scene), "--out", str(tmp_path), "--frames", "3", "--texture-seeds", "3,4", "--quiet"])
+    with open(tmp_path / tool.CSV_NAME, newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["mode"], r["texture_seed"]) for r in rows] == [("cut", "3"), ("no-cut", "3"), ("cut", "4"),
+                                                             ("no-cut", "4")]
+    assert rows[0]["features"] == rows[1]["features"] != rows[2]["features"]  # other features to track
+    assert code in (0, 1) and (tmp_path / tool.PNG_NAME).stat().st_size > 10_000
+
+
+def test_what_the_results_must_show_per_texture_seed():
+    tool = load_tool("ar_results")
+    rows = [dict(scene="a", mode=mode, texture_seed=seed, dice_final=dice, cuts_detected=0)
+            for seed, cut_dice in ((3, 0.95), (4, 0.89)) for mode, dice in (("cut", cut_dice), ("no-cut", 0.90))]
+    assert tool.failures(rows) == ["a (texture 4): Dice 0.8900 with cut handling, 0.9000 without"]

@@ -46,7 +46,8 @@ import numpy as np
 
 from ..cut.surface import TriangleSurface, joined
 from ..errors import CaptureError, SceneError
-from ..scene import Scene, Simulation, _parse, _parse_mesh, _progress, _table, build_mesh, render_surface, tomllib
+from ..scene import (Scene, Simulation, _integer, _parse, _parse_mesh, _progress, _table, build_mesh, render_surface,
+                     tomllib)
 from .camera import Camera
 from .internal import InternalStructure
 from .render import Renderer, Texture
@@ -80,7 +81,7 @@ class SynthResult:
 
 def load_synth_scene(path) -> SynthScene:
     """Read a synthetic scene (a scene with [camera] and [synth]); errors name file and key."""
-    from ..scene import _number, _integer, _string, _vec3
+    from ..scene import _number, _string, _vec3
 
     path = Path(path)
     try:
@@ -186,13 +187,19 @@ def toml_text(table: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def synthesize(path, directory, *, frames: int | None = None, progress: bool | None = None) -> SynthResult:
+def synthesize(path, directory, *, frames: int | None = None, progress: bool | None = None,
+               texture_seed: int | None = None) -> SynthResult:
     """Simulate and render a synthetic scene into the capture ``directory`` (replaced
-    atomically: the capture is written beside it and renamed when complete)."""
+    atomically: the capture is written beside it and renamed when complete).
+
+    ``texture_seed`` replaces the scene's ``synth.texture_seed``: another rendering of the
+    same truth (object, cut, camera), to test that detection settings carry over."""
     import sys
 
     ss = load_synth_scene(path)
     scene, camera, synth = ss.scene, ss.camera, ss.synth
+    if texture_seed is not None:
+        synth = {**synth, "texture_seed": _integer(texture_seed, "texture_seed")}
     frames = scene.frame_count if frames is None else int(frames)
     if frames < 1:
         raise SceneError(f"frames must be at least 1, got {frames}")
