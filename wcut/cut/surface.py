@@ -48,6 +48,8 @@ PLANARITY_TOL = 1e-9
 MAX_PIECES = 1 << 21
 #: Query points per block of a broad-phase k-d tree query (bounds the memory of one query).
 _BLOCK = 4096
+#: a point query of at most this many (point, triangle) pairs measures every pair
+_ALL_PAIRS = 512
 
 
 class SurfaceError(WcutError):
@@ -402,10 +404,13 @@ class TriangleSurface(CutSurface):
         dist, idx = np.full(len(p), np.inf), np.full(len(p), -1, dtype=np.int64)
         if len(p) == 0:
             return dist, idx
-        tree = self._pieces()
-        guess = self._piece_tri[tree.query(p)[1]]
-        upper = _point_triangle_distance(p, *self._v[guess].transpose(1, 0, 2), self.normals[guess])
-        rows, j = self._near_pairs(p, np.minimum(upper, limit))
+        if len(p) * len(self) <= _ALL_PAIRS:  # few pairs: measuring them all costs less than the search
+            rows, j = np.divmod(np.arange(len(p) * len(self)), len(self))
+        else:
+            tree = self._pieces()
+            guess = self._piece_tri[tree.query(p)[1]]
+            upper = _point_triangle_distance(p, *self._v[guess].transpose(1, 0, 2), self.normals[guess])
+            rows, j = self._near_pairs(p, np.minimum(upper, limit))
         v = self._v[j]
         d = _point_triangle_distance(p[rows], v[:, 0], v[:, 1], v[:, 2], self.normals[j])
         order = np.lexsort((d, rows))
