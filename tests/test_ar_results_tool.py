@@ -50,3 +50,25 @@ def test_what_the_results_must_show_per_texture_seed():
     rows = [dict(scene="a", mode=mode, texture_seed=seed, dice_final=dice, cuts_detected=0)
             for seed, cut_dice in ((3, 0.95), (4, 0.89)) for mode, dice in (("cut", cut_dice), ("no-cut", 0.90))]
     assert tool.failures(rows) == ["a (texture 4): Dice 0.8900 with cut handling, 0.9000 without"]
+
+
+def test_a_failed_run_is_a_row_with_its_error_and_the_others_go_on(tmp_path, monkeypatch):
+    import wcut.ar.pipeline
+    from wcut.errors import SimulationError
+
+    tool = load_tool("ar_results")
+    real = wcut.ar.pipeline.run_ar
+
+    def diverging_with_cuts(*args, cut=True, **kwargs):
+        if cut:
+            raise SimulationError("the model diverged")
+        return real(*args, cut=cut, **kwargs)
+
+    monkeypatch.setattr(wcut.ar.pipeline, "run_ar", diverging_with_cuts)
+    scene = tool.ROOT / "scenes" / "ar" / "band_cut_side.toml"
+    rows, last = tool.run_scene(scene, tmp_path, 2)
+    assert rows[0]["error"] == "the model diverged" and rows[0]["dice_final"] is None and last is None
+    assert rows[1]["error"] is None and rows[1]["dice_final"] > 0.9
+    assert tool.failures(rows) == ["band_cut_side (texture 3): cut run failed: the model diverged"]
+    tool.write_png(rows, {("band_cut_side", 3): last}, tmp_path / "failed.png")
+    assert (tmp_path / "failed.png").stat().st_size > 10_000

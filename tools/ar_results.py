@@ -42,18 +42,20 @@ ROOT = Path(__file__).resolve().parents[1]
 CSV_NAME, PNG_NAME = "ar_results.csv", "ar_results.png"
 COLUMNS = ("scene", "mode", "texture_seed", "frames", "features", "dice_final", "hausdorff_surface_mean",
            "hausdorff_surface_max", "hausdorff_internal_mean", "hausdorff_internal_max", "cuts_detected",
-           "first_detection_frame", "detection_ms_mean", "fps_mean")
+           "first_detection_frame", "detection_ms_mean", "fps_mean", "error")
 MM = ("hausdorff_surface_mean", "hausdorff_surface_max", "hausdorff_internal_mean", "hausdorff_internal_max")
 
 
 def run_scene(scene: Path, work: Path, frames: int | None,
               texture_seed: int | None = None) -> tuple[list[dict], np.ndarray]:
     """The two rows of a scene (cut, no-cut) and the last overlay frame of the run with cuts;
-    ``texture_seed`` replaces the scene's."""
+    ``texture_seed`` replaces the scene's. A run that fails (a diverging model) gives a row
+    with its ``error`` and no metrics, and the other runs go on."""
     import cv2
 
     from wcut.ar.pipeline import run_ar
     from wcut.ar.synth import load_synth_scene, synthesize
+    from wcut.errors import WcutError
 
     seed = load_synth_scene(scene).synth["texture_seed"] if texture_seed is None else texture_seed
     name = f"{scene.stem}-{seed}"
@@ -62,9 +64,11 @@ def run_scene(scene: Path, work: Path, frames: int | None,
     rows = []
     for mode in ("cut", "no-cut"):
         video = work / f"{name}-{mode}.avi"
-        result = run_ar(capture, work / f"{name}-{mode}.usdc", overlay=video if mode == "cut" else None,
-                        cut=mode == "cut", progress=False)
-        m = result.metrics()
+        try:
+            m = run_ar(capture, work / f"{name}-{mode}.usdc", overlay=video if mode == "cut" else None,
+                       cut=mode == "cut", progress=False).metrics()
+        except WcutError as error:
+            m = {"error": str(error)}
         row = {key: m.get(key) for key in COLUMNS}
         row.update(scene=scene.stem, mode=mode, texture_seed=seed)
         for key in MM:
@@ -94,7 +98,10 @@ def failures(rows: list[dict]) -> list[str]:
         cut, whole = (next(r for r in rows if (r["scene"], r.get("texture_seed"), r["mode"]) == (scene, seed, m))
                       for m in ("cut", "no-cut"))
         name = _run_name(cut)
-        if scene.endswith("control"):
+        failed = [f"{name}: {r['mode']} run failed: {r['error']}" for r in (cut, whole) if r.get("error")]
+        if failed:
+            out += failed
+        elif scene.endswith("control"):
             if cut["cuts_detected"]:
                 out.append(f"{name}: {cut['cuts_detected']} detections on the control")
         elif not cut["dice_final"] > whole["dice_final"]:
@@ -134,12 +141,14 @@ def write_png(rows: list[dict], frames: dict, path: Path) -> None:
     for k, (mode, color) in enumerate((("cut", "tab:green"), ("no-cut", "tab:gray"))):
         values = [next(r["dice_final"] for r in rows if (r["scene"], r.get("texture_seed")) == run and r["mode"] == mode)
                   for run in runs]
-        bars.bar(x + (k - 0.5) * 0.38, values, 0.38, color=color, label=f"{mode}")
+        bars.bar(x + (k - 0.5) * 0.38, [np.nan if v is None else v for v in values], 0.38, color=color,
+                 label=f"{mode}")
         for xi, v in zip(x, values):
-            bars.text(xi + (k - 0.5) * 0.38, v + 0.002, f"{v:.3f}", ha="center", fontsize=7)
+            label, height = ("failed", 1.0) if v is None else (f"{v:.3f}", v)
+            bars.text(xi + (k - 0.5) * 0.38, height + 0.002, label, ha="center", fontsize=7)
     several = len(runs) > len(scenes)
     bars.set_xticks(x, [f"{scene}\ntexture {seed}" if several else scene for scene, seed in runs], fontsize=8)
-    bars.set_ylim(min(r["dice_final"] for r in rows) - 0.03, 1.01)
+    bars.set_ylim(min((r["dice_final"] for r in rows if r["dice_final"] is not None), default=0.9) - 0.03, 1.01)
     bars.set_ylabel("final Dice (eq. 7.13)")
     bars.legend(fontsize=8, loc="lower right")
     bars.set_title("model outline against the object in the last frame")
