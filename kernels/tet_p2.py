@@ -25,12 +25,24 @@ Force on node ``a``: ``f_a = -sum_g w_g det J_g R_g sigma(R_g^T F_g - I) grad_X 
 (thesis eq. 3.48-3.49 integrated by quadrature), and the stiffness product uses, as for P1,
 the rotated gradients ``g = J^{-1} R^T`` stored once per step, and the rotation stiffness of
 each Gauss point (``wcut.kernels.rotation.rotation_stiffness``) for the tangent ``K_t``.
+
+Compilation: on the CPU this module is compiled with reassociation, reciprocals and fused
+multiply-adds allowed (``FAST_ARITHMETIC_FLAGS``), which let LLVM regroup the short sums of
+these dense per-element kernels: forces and product about 10 % faster (measured side by side
+on the 10k-element beam of ``wcut bench``). The results differ from strict IEEE order by
+rounding only; NaN and infinity keep their meaning (no ``-ffast-math``: the solver's
+non-finite check relies on them).
 """
 
 import warp as wp
 
 from .rotation import axial, polar_rotation, rotation_stiffness
 from .tet_p1 import hooke, rotation_stiffness_diagonal, tangent_stress
+
+#: clang (cc1) flags added for this module on the CPU, after Warp's own
+FAST_ARITHMETIC_FLAGS = "-mreassociate -freciprocal-math -fno-signed-zeros -ffp-contract=fast"
+wp.set_module_options(
+    {"cpu_compiler_flags": f"{wp.config.cpu_compiler_flags or '-march=native'} {FAST_ARITHMETIC_FLAGS}"})
 
 vec10i = wp.types.vector(length=10, dtype=wp.int32)
 mat10x3 = wp.types.matrix(shape=(10, 3), dtype=float)
