@@ -174,6 +174,15 @@ def test_a_closed_end_is_not_extended_again():
         det.close_end(5, True)
 
 
+def test_a_polygon_whose_first_point_came_in_from_the_boundary_grows_without_a_back():
+    det = CutDetector(grid_features(5), DetectionParams(radius=0.03, cut_point_radius=0.01))
+    det._extend(np.array([0.05, 0.01, 0.0]), 3)
+    det.close_end(0, True)  # its cut came in from the boundary below (0.05, 0.01)
+    second = det._extend(np.array([0.05, 0.025, 0.0]), 3)
+    assert second.polygon == 0 and not second.at_start and second.back is None
+    np.testing.assert_allclose(second.look_ahead, [0.05, 0.035, 0.0])
+
+
 def test_lost_features_are_left_out_and_the_floor_holds_noise():
     p0 = grid_features()
     det = CutDetector(p0, DetectionParams(radius=0.012, cut_point_radius=0.008, tau=2.0, min_measure=1e-3))

@@ -139,8 +139,8 @@ def write_png(rows: list[dict], frames: dict, path: Path) -> None:
     bars = fig.add_subplot(grid[0, :])
     x = np.arange(len(runs))
     for k, (mode, color) in enumerate((("cut", "tab:green"), ("no-cut", "tab:gray"))):
-        values = [next(r["dice_final"] for r in rows if (r["scene"], r.get("texture_seed")) == run and r["mode"] == mode)
-                  for run in runs]
+        values = [next(r["dice_final"] for r in rows
+                       if (r["scene"], r.get("texture_seed")) == run and r["mode"] == mode) for run in runs]
         bars.bar(x + (k - 0.5) * 0.38, [np.nan if v is None else v for v in values], 0.38, color=color,
                  label=f"{mode}")
         for xi, v in zip(x, values):

@@ -63,7 +63,8 @@ PARAMS_SCHEMA = {
                   "extrusion": (float, 0.0, -1e-300, "m; 0: the model's bounding-box diagonal"),
                   "method": (str, "paulus", ("paulus", "snap", "bielser", "delete"), "cutter"),
                   "epsilon": (float, 0.2, -1e-300, "snapping threshold"),
-                  "boundary_reach": (float, 0.0, -1e-300, "cut-point radii; 0: a cut ends at its look-ahead")},
+                  "boundary_reach": (float, 0.0, -1e-300, "cut-point radii; 0: a cut ends at its look-ahead"),
+                  "entry_reach": (float, 0.0, -1e-300, "cut-point radii; 0: a polygon's first point cuts nothing")},
 }
 
 

@@ -99,7 +99,8 @@ class CutPoint:
         look_ahead: the point one ``cut_point_radius`` beyond it along ``point - previous``
             (3,), or None for a polygon's first point.
         back: for a polygon's second point, the look-ahead beyond the first point
-            (``previous - cut_point_radius * direction``), else None.
+            (``previous - cut_point_radius * direction``), else None; None too when the
+            first point's end is closed (its cut came in from the boundary).
         at_start: True if it was put before the first point of the polygon.
         outliers: number of outlier pairs it was computed from.
     """
@@ -429,5 +430,5 @@ class CutDetector:
         if length == 0.0:
             return CutPoint(point, index, previous.copy(), None, None, at_start, outliers)
         r = self.params.cut_point_radius * step / length
-        back = previous - r if len(polygon) == 1 else None
+        back = previous - r if len(polygon) == 1 and (index, True) not in closed else None
         return CutPoint(point, index, previous.copy(), point + r, back, at_start, outliers)

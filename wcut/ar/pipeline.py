@@ -33,6 +33,8 @@ from .lifting import intercept_update, plane_points
 BLADE_SAMPLES = 9
 #: points along ``boundary_reach`` beyond a look-ahead tested for the object's boundary
 BOUNDARY_SAMPLES = 21
+#: directions, across the view, searched for the boundary nearest a polygon's first point
+ENTRY_DIRECTIONS = 32
 #: a vertex farther than this many rest sizes from the rest centre means divergence: a band
 #: stretched to 186% reaches less than one, while an S-example run that blew up (a Dice of
 #: 0.61) had a vertex 5 m out, about 40, under the former bound of 100
@@ -173,6 +175,7 @@ class ArTracker:
         self.cut_point_radius = d["cut_point_radius"] or edge
         self.margin = p.springs["margin"] or self.cut_point_radius
         self.boundary_reach = d["boundary_reach"] * self.cut_point_radius
+        self.entry_reach = d["entry_reach"] * self.cut_point_radius
         self.extrusion = d["extrusion"] or float(np.linalg.norm(np.ptp(rest, axis=0)))
         self.detector = None
         if cut:
@@ -284,6 +287,42 @@ class ArTracker:
             return None
         return look_ahead + (s[np.argmin(inside)] + self.cut_point_radius) * unit
 
+    def _entry(self, point: np.ndarray) -> tuple | None:
+        """Where a cut whose first point is ``point`` (m, rest) comes in from the boundary:
+        when the object's outline, searched across the view (perpendicular to the camera's
+        axis), lies less than ``entry_reach`` (m) from the point, ``(outside, look_ahead)``:
+        ``cut_point_radius`` beyond that boundary, and one radius past the point away from
+        it. None otherwise, and always when ``entry_reach`` is 0 (the default).
+
+        A cut from the side opens widest at the boundary, so its first point lies there, a
+        radius or less inside (features stop before the boundary); the pairs this point takes
+        out can leave too few outliers along the narrower rest of the slit for a second point,
+        and a polygon of one point cuts nothing. This is :meth:`_through_boundary`'s rule at
+        a polygon's start. It cannot tell a cut from the side from a first point that merely
+        lies near the boundary (on the kidney, whose cut reaches the flank from inside, it
+        cut the wrong way and the model diverged), so it is a per-scene setting."""
+        reach = self.entry_reach
+        if reach <= 0.0:
+            return None
+        axis = self.camera.view_direction
+        helper = np.eye(3)[np.argmin(np.abs(axis))]
+        e1 = np.cross(axis, helper)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(axis, e1)
+        angles = np.linspace(0.0, 2.0 * np.pi, ENTRY_DIRECTIONS, endpoint=False)
+        directions = np.cos(angles)[:, None] * e1 + np.sin(angles)[:, None] * e2
+        s = np.linspace(0.0, reach, BOUNDARY_SAMPLES)
+        samples = point + s[None, :, None] * directions[:, None, :]
+        _, inside = Embedding.locate_inside(self.mesh.vertices, self.mesh.tets, samples.reshape(-1, 3))
+        inside = inside.reshape(ENTRY_DIRECTIONS, BOUNDARY_SAMPLES)
+        leaves = ~inside.all(axis=1)
+        if not leaves.any():
+            return None
+        exit_at = np.where(leaves, s[np.argmin(inside, axis=1)], np.inf)
+        j = int(np.argmin(exit_at))
+        outward = directions[j]
+        return point + (exit_at[j] + self.cut_point_radius) * outward, point - self.cut_point_radius * outward
+
     def _cut(self, found) -> None:
         """Cut the model along the polygon's new piece (figure 7.7) and carry everything over.
 
@@ -291,7 +330,8 @@ class ArTracker:
         through the new point to its look-ahead; the cutter cuts it progressively, so an
         element opens once the blade has gone through it. A look-ahead less than
         ``boundary_reach`` from the boundary carries the cut through it
-        (:meth:`_through_boundary`) and closes that end of the polygon."""
+        (:meth:`_through_boundary`) and closes that end of the polygon; a polygon's first
+        point less than ``entry_reach`` from the boundary starts a cut from it (:meth:`_entry`)."""
         self.cuts_detected += 1
         x = self.state.particle_q.numpy().astype(np.float64)
         n = self.topology.vertex_count
@@ -300,6 +340,13 @@ class ArTracker:
         k = found.polygon
         if found.previous is None:  # a polygon's first point: a blade, nothing swept yet
             self._tips[(k, False)] = self._tips[(k, True)] = self._blade(found.point, x)
+            entry = self._entry(found.point)
+            if entry is None:
+                return
+            path = [self._blade(entry[0], x), self._tips[(k, False)], self._blade(entry[1], x)]
+            self.detector.close_end(k, True)  # the polygon grows from its look-ahead only
+            self._tips[(k, False)] = path[-1]
+            self._cut_along(path)
             return
         tip = self._tips[(k, found.at_start)]
         path = [tip] if found.back is None else [self._blade(found.back, x), tip]
@@ -319,6 +366,12 @@ class ArTracker:
                 self.detector.close_end(k, not found.at_start)
             self._tips[(k, not found.at_start)] = path[0]
         self._tips[(k, found.at_start)] = path[-1]
+        self._cut_along(path)
+
+    def _cut_along(self, path: list) -> None:
+        """Cut progressively along the blades of ``path`` (see :meth:`_blade`), and carry the
+        features, internal structures, springs, model and solver over to the cut mesh."""
+        x = self.state.particle_q.numpy().astype(np.float64)
         rest_pieces = [s for s in (strip(a[2], b[2]) for a, b in zip(path, path[1:])) if s is not None]
         current_pieces = [s for s in (strip(a[1], b[1]) for a, b in zip(path, path[1:])) if s is not None]
         if not rest_pieces:
