@@ -161,7 +161,7 @@ def test_a_point_grows_the_nearest_end_or_starts_a_new_polygon():
 
 
 def test_a_closed_end_is_not_extended_again():
-    det = CutDetector(grid_features(5), DetectionParams(radius=0.03, cut_point_radius=0.01))
+    det = CutDetector(grid_features(5), DetectionParams(radius=0.03, cut_point_radius=0.01, max_turn=180.0))
     det._extend(np.array([0.05, 0.05, 0.0]), 3)
     det._extend(np.array([0.05, 0.065, 0.0]), 3)
     det.close_end(0, False)  # the cut went out through the boundary past (0.05, 0.065)
@@ -172,6 +172,19 @@ def test_a_closed_end_is_not_extended_again():
     assert alone.polygon == 1 and alone.previous is None and len(det.polygons[0]) == 3
     with pytest.raises(WcutError, match="no polygon 5"):
         det.close_end(5, True)
+
+
+@pytest.mark.parametrize("max_turn, kept", [(45.0, (True, False, False)), (180.0, (True, True, True))])
+def test_a_point_that_turns_its_polygon_too_far_is_dropped(max_turn, kept):
+    det = CutDetector(grid_features(5), DetectionParams(radius=0.03, cut_point_radius=0.01, max_turn=max_turn))
+    det._extend(np.array([0.05, 0.02, 0.0]), 3)
+    det._extend(np.array([0.05, 0.035, 0.0]), 3)  # the polygon runs along +y
+    tries = [np.array([0.055, 0.05, 0.0]),  # 18 degrees off: a smooth bend
+             np.array([0.075, 0.04, 0.0]),  # 98 degrees off: back into the object
+             np.array([0.035, 0.025, 0.0])]  # back beside the polygon, at its start
+    got = [det._extend(point, 3) is not None for point in tries]
+    assert tuple(got) == kept
+    assert len(det.polygons) == 1 and len(det.polygons[0]) == 2 + sum(kept)
 
 
 def test_a_polygon_whose_first_point_came_in_from_the_boundary_grows_without_a_back():
@@ -194,7 +207,8 @@ def test_lost_features_are_left_out_and_the_floor_holds_noise():
 
 
 @pytest.mark.parametrize("key, value", [("radius", 0.0), ("cut_point_radius", -1.0), ("tau", float("nan")),
-                                        ("min_outliers", 0), ("measure", "both"), ("join_radius", -0.1)])
+                                        ("min_outliers", 0), ("measure", "both"), ("join_radius", -0.1),
+                                        ("max_turn", 0.0), ("max_turn", 270.0)])
 def test_bad_parameters_name_the_key(key, value):
     settings = dict(radius=0.01, cut_point_radius=0.005)
     settings[key] = value

@@ -64,7 +64,8 @@ PARAMS_SCHEMA = {
                   "method": (str, "paulus", ("paulus", "snap", "bielser", "delete"), "cutter"),
                   "epsilon": (float, 0.2, -1e-300, "snapping threshold"),
                   "boundary_reach": (float, 0.0, -1e-300, "cut-point radii; 0: a cut ends at its look-ahead"),
-                  "entry_reach": (float, 0.0, -1e-300, "cut-point radii; 0: a polygon's first point cuts nothing")},
+                  "entry_reach": (float, 0.0, -1e-300, "cut-point radii; 0: a polygon's first point cuts nothing"),
+                  "max_turn": (float, 45.0, 0.0, "degrees a cut point may turn its polygon")},
 }
 
 

@@ -182,7 +182,7 @@ class ArTracker:
             self.detector = CutDetector(self.embedding.rest_points, DetectionParams(
                 radius=d["radius"] or 2.5 * spacing, cut_point_radius=self.cut_point_radius, tau=d["tau"],
                 min_outliers=d["min_outliers"], measure=d["measure"],
-                min_measure=d["min_measure"] or 0.2 * spacing))
+                min_measure=d["min_measure"] or 0.2 * spacing, max_turn=d["max_turn"]))
             self.topology = TetTopology(self.mesh)
             self.cutter = Cutter(self.topology, method=d["method"], epsilon=d["epsilon"])
             self._tips: dict[tuple[int, bool], tuple] = {}  # (polygon, at start) -> blade
