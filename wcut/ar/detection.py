@@ -73,8 +73,8 @@ class DetectionParams:
             ([79]) restricted the angle of its cut lines and gave it up because a line fixed
             to the image turns with the object; a polygon here lies in the rest
             configuration, which does not turn. 45 degrees: true turns between cut points 10-20
-            mm apart (the S-example's sine) measured up to 48; 45 did better than 60 over six
-            scenes and up to eight textures each (README).
+            mm apart (the S-example's sine) measured up to 48, and 45 did better than 60 on
+            every scene it changed, over up to eight textures each (README).
     """
 
     radius: float
