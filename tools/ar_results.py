@@ -19,9 +19,10 @@ the same truth (object, cut, camera) with other features to track, which tells w
 scene's detection settings hold beyond the rendering they were chosen on.
 
 Writes into ``--out`` (atomically, each file): ``ar_results.csv`` (one row per scene, texture
-seed and mode: ``scene, mode, texture_seed, frames, features, dice_final, hausdorff_surface_mean, hausdorff_surface_max,
-hausdorff_internal_mean, hausdorff_internal_max, cuts_detected, first_detection_frame,
-detection_ms_mean, fps_mean``; distances in mm) and ``ar_results.png`` (Dice with and without
+seed and mode: ``scene, mode, texture_seed, frames, features, dice_final,
+hausdorff_surface_mean, hausdorff_surface_max, hausdorff_internal_mean, hausdorff_internal_max,
+cuts_detected, first_detection_frame, detection_ms_mean, fps_mean, error``; distances in mm;
+``error`` says why a run failed, a diverging model, and the others go on) and ``ar_results.png`` (Dice with and without
 cut handling per scene, and the last overlay frame of each run with cut handling). Exit status
 0, or 1 when a scene's Dice with cut handling does not beat ``--no-cut`` (the control, whose
 name ends in ``control``, must give no detection instead).
