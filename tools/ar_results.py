@@ -148,7 +148,8 @@ def write_png(rows: list[dict], frames: dict, path: Path) -> None:
             label, height = ("failed", 1.0) if v is None else (f"{v:.3f}", v)
             bars.text(xi + (k - 0.5) * 0.38, height + 0.002, label, ha="center", fontsize=7)
     several = len(runs) > len(scenes)
-    bars.set_xticks(x, [f"{scene}\ntexture {seed}" if several else scene for scene, seed in runs], fontsize=8)
+    bars.set_xticks(x, [f"{scene}\ntexture {seed}" if several else scene for scene, seed in runs],
+                    fontsize=6 if several else 8)
     bars.set_ylim(min((r["dice_final"] for r in rows if r["dice_final"] is not None), default=0.9) - 0.03, 1.01)
     bars.set_ylabel("final Dice (eq. 7.13)")
     bars.legend(fontsize=8, loc="lower right")
