@@ -63,7 +63,6 @@ def main(argv=None) -> int:
     import warp as wp
 
     wp.config.quiet = True
-    wp.init()
     archs = nvrtc_archs()
     if args.arch not in archs:
         print(f"NVRTC cannot compile for sm_{args.arch} in this Warp build (it can for: "
@@ -88,7 +87,6 @@ def main(argv=None) -> int:
         print(f"{len(failed)} of {len(names)} modules do not compile for CUDA: {', '.join(failed)}", file=sys.stderr)
         return 1
     return 0
-
 
 
 if __name__ == "__main__":
