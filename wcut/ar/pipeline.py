@@ -281,11 +281,20 @@ class ArTracker:
         if reach <= 0.0:
             return None
         unit = direction / np.linalg.norm(direction)
-        s = np.linspace(0.0, reach, BOUNDARY_SAMPLES)
-        _, inside = Embedding.locate_inside(self.mesh.vertices, self.mesh.tets, look_ahead + s[:, None] * unit)
-        if inside.all():
+        exit_at = self._exit_distances(look_ahead, unit[None], reach)[0]
+        if not np.isfinite(exit_at):
             return None
-        return look_ahead + (s[np.argmin(inside)] + self.cut_point_radius) * unit
+        return look_ahead + (exit_at + self.cut_point_radius) * unit
+
+    def _exit_distances(self, point: np.ndarray, directions: np.ndarray, reach: float) -> np.ndarray:
+        """(D,) distance (m) from ``point`` along each unit direction (D, 3) to where the rest
+        mesh ends, sampled at ``BOUNDARY_SAMPLES`` points up to ``reach``; inf where it
+        does not end within ``reach``."""
+        s = np.linspace(0.0, reach, BOUNDARY_SAMPLES)
+        samples = point + s[None, :, None] * directions[:, None, :]
+        _, inside = Embedding.locate_inside(self.mesh.vertices, self.mesh.tets, samples.reshape(-1, 3))
+        inside = inside.reshape(len(directions), BOUNDARY_SAMPLES)
+        return np.where(inside.all(axis=1), np.inf, s[np.argmin(inside, axis=1)])
 
     def _entry(self, point: np.ndarray) -> tuple | None:
         """Where a cut whose first point is ``point`` (m, rest) comes in from the boundary:
@@ -311,15 +320,10 @@ class ArTracker:
         e2 = np.cross(axis, e1)
         angles = np.linspace(0.0, 2.0 * np.pi, ENTRY_DIRECTIONS, endpoint=False)
         directions = np.cos(angles)[:, None] * e1 + np.sin(angles)[:, None] * e2
-        s = np.linspace(0.0, reach, BOUNDARY_SAMPLES)
-        samples = point + s[None, :, None] * directions[:, None, :]
-        _, inside = Embedding.locate_inside(self.mesh.vertices, self.mesh.tets, samples.reshape(-1, 3))
-        inside = inside.reshape(ENTRY_DIRECTIONS, BOUNDARY_SAMPLES)
-        leaves = ~inside.all(axis=1)
-        if not leaves.any():
-            return None
-        exit_at = np.where(leaves, s[np.argmin(inside, axis=1)], np.inf)
+        exit_at = self._exit_distances(point, directions, reach)
         j = int(np.argmin(exit_at))
+        if not np.isfinite(exit_at[j]):
+            return None
         outward = directions[j]
         return point + (exit_at[j] + self.cut_point_radius) * outward, point - self.cut_point_radius * outward
 
@@ -371,7 +375,6 @@ class ArTracker:
     def _cut_along(self, path: list) -> None:
         """Cut progressively along the blades of ``path`` (see :meth:`_blade`), and carry the
         features, internal structures, springs, model and solver over to the cut mesh."""
-        x = self.state.particle_q.numpy().astype(np.float64)
         rest_pieces = [s for s in (strip(a[2], b[2]) for a, b in zip(path, path[1:])) if s is not None]
         current_pieces = [s for s in (strip(a[1], b[1]) for a, b in zip(path, path[1:])) if s is not None]
         if not rest_pieces:
