@@ -10,11 +10,11 @@ recorded once (CPU) or captured in a graph (CUDA). Convergence is checked on the
 launch returns at once.
 Fixed vertices have a zero preconditioner; their r, z, p stay zero.
 
-Each thread of the node kernels takes ``chunk`` consecutive nodes (:func:`node_range`) and adds
-its share of a dot product once. On the CPU, where Warp runs the threads one after another,
-a chunk of 64 keeps the running sum in a register instead of every node adding to the same
-address and waiting for the previous add; on CUDA a chunk of 1 keeps neighbouring threads on
-neighbouring nodes (coalesced loads).
+Each thread of the node kernels takes ``chunk`` consecutive nodes
+(:func:`wcut.kernels.ranges.thread_range`) and adds its share of a dot product once. On the
+CPU, where Warp runs the threads one after another, a chunk of 64 keeps the running sum in a
+register instead of every node adding to the same address and waiting for the previous add;
+on CUDA a chunk of 1 keeps neighbouring threads on neighbouring nodes (coalesced loads).
 
 (Folding ``p.q`` into the element product, to save :func:`cg_apply_mass`, was measured slower
 on the CPU: the per-element add to one address serialises the element loop.)
@@ -23,13 +23,7 @@ on the CPU: the per-element add to one address serialises the element loop.)
 import warp as wp
 
 from .partial_sums import take_partials
-
-
-@wp.func
-def node_range(thread: int, chunk: int, count: int):
-    """The nodes ``[lo, hi)`` of ``thread``: ``chunk`` consecutive ones (fewer in the last)."""
-    lo = thread * chunk
-    return lo, wp.min(lo + chunk, count)
+from .ranges import thread_range
 
 
 @wp.kernel
@@ -52,7 +46,7 @@ def cg_init(
     Also sums ``norms[1] = b.D^-1 b`` and the convergence threshold
     ``norms[0] = tolerance_sq * b.D^-1 b``, and clears ``q``.
     """
-    lo, hi = node_range(wp.tid(), chunk, x.shape[0])
+    lo, hi = thread_range(wp.tid(), chunk, x.shape[0])
     zero = wp.vec3(0.0)
     rz_sum = float(0.0)
     bb_sum = float(0.0)
@@ -98,7 +92,7 @@ def cg_apply_mass(
     (``wcut.split_launch``); it has no rows otherwise."""
     if rz[k] <= threshold[0]:
         return
-    lo, hi = node_range(wp.tid(), chunk, p.shape[0])
+    lo, hi = thread_range(wp.tid(), chunk, p.shape[0])
     pq_sum = float(0.0)
     for i in range(lo, hi):
         qi = take_partials(partials, i, q[i])
@@ -134,7 +128,7 @@ def cg_update(
     alpha = float(0.0)
     if pq[k] > 0.0:
         alpha = rz[k] / pq[k]
-    lo, hi = node_range(wp.tid(), chunk, x.shape[0])
+    lo, hi = thread_range(wp.tid(), chunk, x.shape[0])
     rz_sum = float(0.0)
     for i in range(lo, hi):
         x[i] = x[i] + alpha * p[i]
@@ -160,7 +154,7 @@ def cg_direction(
     if rz[k + 1] <= threshold[0]:
         return
     beta = rz[k + 1] / rz[k]
-    lo, hi = node_range(wp.tid(), chunk, p.shape[0])
+    lo, hi = thread_range(wp.tid(), chunk, p.shape[0])
     for i in range(lo, hi):
         p[i] = z[i] + beta * p[i]
 

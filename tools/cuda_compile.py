@@ -28,10 +28,17 @@ import time
 
 
 def kernel_modules() -> list[str]:
-    """The names of the modules of ``wcut.kernels``."""
+    """The names of the modules of ``wcut.kernels`` that define kernels (a module of functions
+    only, ``ranges``, is compiled into the modules whose kernels call it)."""
+    import warp as wp
+
     import wcut.kernels
 
-    return sorted(m.name for m in pkgutil.iter_modules(wcut.kernels.__path__))
+    def has_kernels(name: str) -> bool:
+        module = importlib.import_module(f"wcut.kernels.{name}")
+        return any(isinstance(value, wp.Kernel) for value in vars(module).values())
+
+    return sorted(m.name for m in pkgutil.iter_modules(wcut.kernels.__path__) if has_kernels(m.name))
 
 
 def nvrtc_archs() -> list[int]:
