@@ -17,17 +17,18 @@ def attachment_forces(
     attachment_target: wp.array(dtype=wp.vec3),
     particle_q: wp.array(dtype=wp.vec3),
     particle_qd: wp.array(dtype=wp.vec3),
-    dv_start: wp.array(dtype=wp.vec3),
     velocity_scale: float,
     matrix_scale: float,
     particle_f: wp.array(dtype=wp.vec3),
     particle_diagonal: wp.array(dtype=wp.vec3),
-    product_start: wp.array(dtype=wp.vec3),
+    reach_max: wp.array(dtype=float),
 ):
     """Spring terms of one step, mirroring :func:`wcut.kernels.tet_p1.tet_forces`.
 
-    Scatters the force ``-k w_j (p - target + velocity_scale dp/dt)``, the diagonal
-    ``matrix_scale k w_j^2`` and ``matrix_scale (K_attach dv_start)_j``.
+    Scatters the force ``-k w_j (p - target + velocity_scale dp/dt)`` and the diagonal
+    ``matrix_scale k w_j^2``; keeps the largest distance ``|p - target|`` (m) in
+    ``reach_max[0]`` (for the divergence check: a spring can pull its point at that distance
+    per step).
     """
     s = wp.tid()
     idx = attachment_indices[s]
@@ -35,17 +36,17 @@ def attachment_forces(
     k = attachment_stiffness[s]
     p = wp.vec3(0.0)
     pd = wp.vec3(0.0)
-    p0 = wp.vec3(0.0)
     for j in range(4):
         p += w[j] * particle_q[idx[j]]
         pd += w[j] * particle_qd[idx[j]]
-        p0 += w[j] * dv_start[idx[j]]
-    f = -k * (p - attachment_target[s] + velocity_scale * pd)
+    gap = p - attachment_target[s]
+    if k > 0.0:
+        wp.atomic_max(reach_max, 0, wp.length(gap))
+    f = -k * (gap + velocity_scale * pd)
     for j in range(4):
         if w[j] != 0.0:
             wp.atomic_add(particle_f, idx[j], w[j] * f)
             wp.atomic_add(particle_diagonal, idx[j], wp.vec3(matrix_scale * k * w[j] * w[j]))
-            wp.atomic_add(product_start, idx[j], (matrix_scale * k * w[j]) * p0)
 
 
 @wp.kernel
@@ -55,14 +56,9 @@ def attachment_matvec(
     attachment_stiffness: wp.array(dtype=float),
     x: wp.array(dtype=wp.vec3),
     scale: float,
-    k: int,
-    rz: wp.array(dtype=float),
-    threshold: wp.array(dtype=float),
     y: wp.array(dtype=wp.vec3),
 ):
-    """y += scale K_attach x; returns at once when ``rz[k] <= threshold[0]``."""
-    if rz[k] <= threshold[0]:
-        return
+    """y += scale K_attach x."""
     s = wp.tid()
     idx = attachment_indices[s]
     w = attachment_weights[s]

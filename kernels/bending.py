@@ -44,15 +44,13 @@ def hinge_forces(
     edge_rest_curvature: wp.array(dtype=wp.vec3),
     particle_q: wp.array(dtype=wp.vec3),
     particle_qd: wp.array(dtype=wp.vec3),
-    dv_start: wp.array(dtype=wp.vec3),
     velocity_scale: float,
     matrix_scale: float,
     particle_f: wp.array(dtype=wp.vec3),
     particle_diagonal: wp.array(dtype=wp.vec3),
-    product_start: wp.array(dtype=wp.vec3),
 ):
-    """Per hinge: ``particle_f += -k w (w.(x + c_v v) - R_h b)``, ``particle_diagonal +=
-    c_A k w_i^2``, ``product_start += c_A k w (w.dv0)`` (the terms of ``tet_p1.tet_forces``)."""
+    """Per hinge: ``particle_f += -k w (w.(x + c_v v) - R_h b)`` and ``particle_diagonal +=
+    c_A k w_i^2`` (the terms of ``tet_p1.tet_forces``)."""
     h = wp.tid()
     i = edge_indices[h]
     w = edge_weights[h]
@@ -66,8 +64,6 @@ def hinge_forces(
     s = w[1] * (x1 - x0) + w[2] * (x2 - x0) + w[3] * (x3 - x0) - target
     s = s + velocity_scale * (w[0] * particle_qd[i[0]] + w[1] * particle_qd[i[1]] + w[2] * particle_qd[i[2]]
                               + w[3] * particle_qd[i[3]])
-    d = w[0] * dv_start[i[0]] + w[1] * dv_start[i[1]] + w[2] * dv_start[i[2]] + w[3] * dv_start[i[3]]
     for a in range(4):
         wp.atomic_add(particle_f, i[a], (-k * w[a]) * s)
-        wp.atomic_add(product_start, i[a], (matrix_scale * k * w[a]) * d)
         wp.atomic_add(particle_diagonal, i[a], wp.vec3(matrix_scale * k * w[a] * w[a]))

@@ -1,23 +1,32 @@
-"""Fused Jacobi-preconditioned conjugate gradient on nodal vec3 arrays.
+"""Fused preconditioned conjugate gradient on nodal vec3 arrays, with its loop on the device.
 
-One iteration is the element (and attachment) products into ``q`` and three node-wise kernels,
-each fusing a vector update with the dot product the next one needs:
-:func:`cg_apply_mass` (``q = A p``, ``p.q``), :func:`cg_update` (x, r, z, ``r.z``) and
-:func:`cg_direction` (p). The scalars live on the device, one slot per iteration
-(``rz[k]``, ``pq[k]``), so an iteration never reads back to the host and the whole loop can be
-recorded once (CPU) or captured in a graph (CUDA). Convergence is checked on the device: once
-``rz[k] <= threshold`` (``threshold = tol^2 * b.D^-1 b``, D the diagonal of A) every later
-launch returns at once.
-Fixed vertices have a zero preconditioner; their r, z, p stay zero.
+The solve starts from ``x = 0`` (a cold start: a truncated solve warm-started from the last
+step's ``dv`` keeps that ``dv`` in the modes it has not yet converged, an explicit
+extrapolation of the velocity that grows without bound on a stiff object). It stops on the
+Jacobi-scaled residual ``rd = r.D^-1 r`` (D the diagonal of A), relative to ``b.D^-1 b``,
+whatever the preconditioner P: with P = D it is ``r.z``; with a factor it costs no solve,
+so a step that converges in one iteration applies the factor once. One iteration ``k``
+(read from ``counter[0]``) is:
+
+1. with a factor: ``z = P^-1 r``, ``rz[k] = r.z`` (``wcut.kernels.cholesky``);
+2. :func:`cg_direction`: ``p = z + beta p`` (``beta = rz[k] / rz[k-1]``, 0 at ``k = 0``);
+3. the element (and attachment) products into ``q``;
+4. :func:`cg_apply_mass`: ``q = A p``, ``pq[k] = p.q``;
+5. :func:`cg_update`: x, r and ``rd[k+1]``; with Jacobi also ``z = D^-1 r`` (and ``rz`` is
+   ``rd``);
+6. :func:`cg_advance`: ``counter += 1``, and ``running = rd[k+1] > threshold`` and below the
+   iteration cap.
+
+The scalars live on the device, one slot per iteration, so an iteration never reads back to
+the host: the loop is one ``wp.capture_while`` on ``running``, recorded once (CPU) or captured
+as a conditional graph node (CUDA), and a converged solve launches nothing more.
+Fixed vertices have a zero ``D^-1``; their r, z, p stay zero.
 
 Each thread of the node kernels takes ``chunk`` consecutive nodes
 (:func:`wcut.kernels.ranges.thread_range`) and adds its share of a dot product once. On the
 CPU, where Warp runs the threads one after another, a chunk of 64 keeps the running sum in a
 register instead of every node adding to the same address and waiting for the previous add;
 on CUDA a chunk of 1 keeps neighbouring threads on neighbouring nodes (coalesced loads).
-
-(Folding ``p.q`` into the element product, to save :func:`cg_apply_mass`, was measured slower
-on the CPU: the per-element add to one address serialises the element loop.)
 """
 
 import warp as wp
@@ -29,58 +38,70 @@ from .ranges import thread_range
 @wp.kernel
 def cg_init(
     chunk: int,
+    jacobi: int,
     rhs: wp.array(dtype=wp.vec3),
     inv_diagonal: wp.array(dtype=wp.vec3),
-    mass_scale: wp.array(dtype=float),
     x: wp.array(dtype=wp.vec3),
-    tolerance_sq: float,
-    q: wp.array(dtype=wp.vec3),
     r: wp.array(dtype=wp.vec3),
     z: wp.array(dtype=wp.vec3),
     p: wp.array(dtype=wp.vec3),
-    rz: wp.array(dtype=float),
-    norms: wp.array(dtype=float),
+    q: wp.array(dtype=wp.vec3),
+    rd: wp.array(dtype=float),
 ):
-    """r = b - A x (q holds the stiffness part of A x), z = D^-1 r, p = z, rz[0] = r.z.
-
-    Also sums ``norms[1] = b.D^-1 b`` and the convergence threshold
-    ``norms[0] = tolerance_sq * b.D^-1 b``, and clears ``q``.
-    """
+    """x = 0, r = b, p = 0, q = 0, rd[0] = b.D^-1 b; with ``jacobi`` also z = D^-1 r."""
     lo, hi = thread_range(wp.tid(), chunk, x.shape[0])
     zero = wp.vec3(0.0)
-    rz_sum = float(0.0)
-    bb_sum = float(0.0)
+    rd_sum = float(0.0)
     for i in range(lo, hi):
         d = inv_diagonal[i]
-        if d[0] == 0.0:  # fixed vertex: outside the system
-            x[i] = zero
-            r[i] = zero
-            z[i] = zero
-            p[i] = zero
-        else:
+        b = zero
+        if d[0] != 0.0:  # (a fixed vertex is outside the system)
             b = rhs[i]
-            ri = b - (q[i] + mass_scale[i] * x[i])
-            zi = wp.cw_mul(d, ri)
-            r[i] = ri
-            z[i] = zi
-            p[i] = zi
-            rz_sum += wp.dot(ri, zi)
-            bb_sum += wp.dot(b, wp.cw_mul(d, b))
+        x[i] = zero
+        r[i] = b
+        p[i] = zero
         q[i] = zero
-    wp.atomic_add(rz, 0, rz_sum)
-    wp.atomic_add(norms, 0, tolerance_sq * bb_sum)
-    wp.atomic_add(norms, 1, bb_sum)
+        zi = wp.cw_mul(d, b)
+        if jacobi != 0:
+            z[i] = zi
+        rd_sum += wp.dot(b, zi)
+    wp.atomic_add(rd, 0, rd_sum)
+
+
+@wp.kernel
+def cg_start(tolerance_sq: float, max_iterations: int, rd: wp.array(dtype=float),
+             norms: wp.array(dtype=float), running: wp.array(dtype=wp.int32)):
+    """One thread: ``norms = (tol^2 b.D^-1 b, b.D^-1 b)``; run while ``rd[0]`` is above 0."""
+    norms[0] = tolerance_sq * rd[0]
+    norms[1] = rd[0]
+    running[0] = wp.where(rd[0] > 0.0 and max_iterations > 0, 1, 0)
+
+
+@wp.kernel
+def cg_direction(
+    chunk: int,
+    counter: wp.array(dtype=wp.int32),
+    z: wp.array(dtype=wp.vec3),
+    rz: wp.array(dtype=float),
+    p: wp.array(dtype=wp.vec3),
+):
+    """p = z + (rz[k] / rz[k-1]) p (p = z at k = 0)."""
+    k = counter[0]
+    beta = float(0.0)
+    if k > 0:
+        beta = rz[k] / rz[k - 1]
+    lo, hi = thread_range(wp.tid(), chunk, p.shape[0])
+    for i in range(lo, hi):
+        p[i] = z[i] + beta * p[i]
 
 
 @wp.kernel
 def cg_apply_mass(
     chunk: int,
-    k: int,
+    counter: wp.array(dtype=wp.int32),
     inv_diagonal: wp.array(dtype=wp.vec3),
     mass_scale: wp.array(dtype=float),
     p: wp.array(dtype=wp.vec3),
-    rz: wp.array(dtype=float),
-    threshold: wp.array(dtype=float),
     partials: wp.array2d(dtype=wp.vec3),
     q: wp.array(dtype=wp.vec3),
     pq: wp.array(dtype=float),
@@ -90,8 +111,7 @@ def cg_apply_mass(
 
     ``partials`` holds the scatters of an element product split over CPU threads
     (``wcut.split_launch``); it has no rows otherwise."""
-    if rz[k] <= threshold[0]:
-        return
+    k = counter[0]
     lo, hi = thread_range(wp.tid(), chunk, p.shape[0])
     pq_sum = float(0.0)
     for i in range(lo, hi):
@@ -109,54 +129,46 @@ def cg_apply_mass(
 @wp.kernel
 def cg_update(
     chunk: int,
-    k: int,
+    jacobi: int,
+    counter: wp.array(dtype=wp.int32),
     inv_diagonal: wp.array(dtype=wp.vec3),
     p: wp.array(dtype=wp.vec3),
     pq: wp.array(dtype=float),
-    threshold: wp.array(dtype=float),
+    rz: wp.array(dtype=float),
     x: wp.array(dtype=wp.vec3),
     r: wp.array(dtype=wp.vec3),
     z: wp.array(dtype=wp.vec3),
     q: wp.array(dtype=wp.vec3),
-    rz: wp.array(dtype=float),
+    rd: wp.array(dtype=float),
 ):
-    """x += alpha p, r -= alpha q, z = D^-1 r, rz[k+1] = r.z, q = 0 (alpha = rz[k] / pq[k])."""
-    if rz[k] <= threshold[0]:
-        if wp.tid() == 0:
-            rz[k + 1] = rz[k]
-        return
+    """x += alpha p, r -= alpha q, q = 0 (alpha = rz[k] / pq[k]), rd[k+1] = r.D^-1 r; with
+    ``jacobi`` also z = D^-1 r (``rd`` is then ``rz``)."""
+    k = counter[0]
     alpha = float(0.0)
     if pq[k] > 0.0:
         alpha = rz[k] / pq[k]
     lo, hi = thread_range(wp.tid(), chunk, x.shape[0])
-    rz_sum = float(0.0)
+    rd_sum = float(0.0)
     for i in range(lo, hi):
         x[i] = x[i] + alpha * p[i]
         ri = r[i] - alpha * q[i]
-        zi = wp.cw_mul(inv_diagonal[i], ri)
         r[i] = ri
-        z[i] = zi
         q[i] = wp.vec3(0.0)
-        rz_sum += wp.dot(ri, zi)
-    wp.atomic_add(rz, k + 1, rz_sum)
+        zi = wp.cw_mul(inv_diagonal[i], ri)
+        if jacobi != 0:
+            z[i] = zi
+        rd_sum += wp.dot(ri, zi)
+    wp.atomic_add(rd, k + 1, rd_sum)
 
 
 @wp.kernel
-def cg_direction(
-    chunk: int,
-    k: int,
-    z: wp.array(dtype=wp.vec3),
-    rz: wp.array(dtype=float),
-    threshold: wp.array(dtype=float),
-    p: wp.array(dtype=wp.vec3),
-):
-    """p = z + (rz[k+1] / rz[k]) p."""
-    if rz[k + 1] <= threshold[0]:
-        return
-    beta = rz[k + 1] / rz[k]
-    lo, hi = thread_range(wp.tid(), chunk, p.shape[0])
-    for i in range(lo, hi):
-        p[i] = z[i] + beta * p[i]
+def cg_advance(max_iterations: int, rd: wp.array(dtype=float), norms: wp.array(dtype=float),
+               counter: wp.array(dtype=wp.int32), running: wp.array(dtype=wp.int32)):
+    """One thread, after iteration k: ``counter = k + 1``; go on while ``rd[k+1]`` is above
+    the threshold and fewer than ``max_iterations`` iterations ran."""
+    k = counter[0] + 1
+    counter[0] = k
+    running[0] = wp.where(rd[k] > norms[0] and k < max_iterations, 1, 0)
 
 
 # -- kernels of the same system as a warp.optim.linear LinearOperator (for the benchmark that

@@ -30,8 +30,10 @@ def assemble_system(
     rhs: wp.array(dtype=wp.vec3),
     inv_diagonal: wp.array(dtype=wp.vec3),
     mass_scale: wp.array(dtype=float),
+    load_acceleration: wp.array(dtype=float),
 ):
-    """Right-hand side ``b``, inverse diagonal of ``A`` (Jacobi) and ``(1 + h alpha) m``.
+    """Right-hand side ``b``, inverse diagonal of ``A`` (Jacobi) and ``(1 + h alpha) m``, and
+    ``load_acceleration[0] = max |f_ext| / m`` (m/s^2, for the divergence check).
 
     Gravity acts through ``particle_load_mass`` (the consistent load ``int rho N_i dV``), inertia
     and damping through the lumped ``particle_mass``; they are equal for linear elements."""
@@ -41,7 +43,10 @@ def assemble_system(
         inv_diagonal[i] = wp.vec3(0.0)
         return
     m = particle_mass[i]
-    rhs[i] = dt * (particle_f[i] + external_f[i] + particle_load_mass[i] * gravity - (rayleigh_mass * m) * particle_qd[i])
+    f = external_f[i]
+    if f[0] != 0.0 or f[1] != 0.0 or f[2] != 0.0:
+        wp.atomic_max(load_acceleration, 0, wp.length(f) / m)
+    rhs[i] = dt * (particle_f[i] + f + particle_load_mass[i] * gravity - (rayleigh_mass * m) * particle_qd[i])
     ms = (1.0 + dt * rayleigh_mass) * m
     mass_scale[i] = ms
     d = particle_diagonal[i] + wp.vec3(ms)
@@ -58,11 +63,17 @@ def integrate(
     particle_q_out: wp.array(dtype=wp.vec3),
     particle_qd_out: wp.array(dtype=wp.vec3),
     nonfinite_count: wp.array(dtype=wp.int32),
+    speed_sq_max: wp.array(dtype=float),
 ):
-    """v' = v + dv, x' = x + h v' (eq. 3.60-3.61); fixed vertices keep their position."""
+    """v' = v + dv, x' = x + h v' (eq. 3.60-3.61); fixed vertices keep their position.
+
+    Counts the vertices whose new position or velocity is not finite and keeps the largest
+    squared speed (m^2/s^2) in ``speed_sq_max[0]``, for the divergence check."""
     i = wp.tid()
     x = particle_q[i]
     if particle_fixed[i] != 0:
+        if not wp.isfinite(x):
+            wp.atomic_add(nonfinite_count, 0, 1)
         particle_q_out[i] = x
         particle_qd_out[i] = wp.vec3(0.0)
         return
@@ -70,5 +81,7 @@ def integrate(
     x = x + dt * v
     if not (wp.isfinite(x) and wp.isfinite(v)):
         wp.atomic_add(nonfinite_count, 0, 1)
+    else:
+        wp.atomic_max(speed_sq_max, 0, wp.dot(v, v))
     particle_q_out[i] = x
     particle_qd_out[i] = v

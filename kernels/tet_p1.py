@@ -64,9 +64,9 @@ def tet_forces(
     tet_indices: wp.array(dtype=wp.vec4i),
     tet_poses: wp.array(dtype=wp.mat33),
     tet_stiffness: wp.array(dtype=wp.vec2),
+    rest_q: wp.array(dtype=wp.vec3),
     particle_q: wp.array(dtype=wp.vec3),
     particle_qd: wp.array(dtype=wp.vec3),
-    dv_start: wp.array(dtype=wp.vec3),
     tet_rotation_in: wp.array(dtype=wp.quat),
     velocity_scale: float,
     matrix_scale: float,
@@ -78,7 +78,6 @@ def tet_forces(
     tet_rotation_stiffness: wp.array(dtype=wp.mat33),
     particle_f: wp.array(dtype=wp.vec3),
     particle_diagonal: wp.array(dtype=wp.vec3),
-    product_start: wp.array(dtype=wp.vec3),
 ):
     """Per element, once per step: rotation, rotated gradients and every stiffness term.
 
@@ -89,41 +88,43 @@ def tet_forces(
     - ``particle_f += -R K (R^T x - X) - c_v K_t v``: the corotational internal force
       (eq. 3.49) and the stiffness part of the implicit right-hand side and of Rayleigh
       damping (eq. 3.52, 3.69);
-    - ``particle_diagonal += c_A diag(K_t)`` (Jacobi preconditioner);
-    - ``product_start += c_A K_t dv_start``: the stiffness part of ``A dv0`` for the
-      warm-started conjugate gradient, so it needs no separate product.
+    - ``particle_diagonal += c_A diag(K_t)`` (the diagonal of the system matrix).
 
     Hooke's law is isotropic and linear, so ``R sigma(R^T F - I) R^T = sigma(F R^T - I)``, with
-    ``g = Dm^{-1} R^T`` holding the rotated gradients and ``F R^T = Ds g``.
+    ``g = Dm^{-1} R^T`` holding the rotated gradients. The deformation gradient is taken from
+    the displacements ``u = x - X`` (``rest_q`` holds X): ``F = I + Du Dm^{-1}`` and
+    ``F R^T - I = R^T - I + Du g``. From positions, ``Ds Dm^{-1}`` cancels terms of the size of
+    ``Dm^{-1}``'s entries down to ``I``: on a sliver of aspect 1e4 its float32 rounding is a
+    strain of 1e-3 at rest, a force the solver resolves into motion; from displacements the
+    rest state is exactly stress-free.
     """
     e = wp.tid()
     t = tet_indices[e]
-    x3 = particle_q[t[3]]
-    Ds = wp.matrix_from_cols(particle_q[t[0]] - x3, particle_q[t[1]] - x3, particle_q[t[2]] - x3)
+    u3 = particle_q[t[3]] - rest_q[t[3]]
+    Du = wp.matrix_from_cols(particle_q[t[0]] - rest_q[t[0]] - u3, particle_q[t[1]] - rest_q[t[1]] - u3,
+                             particle_q[t[2]] - rest_q[t[2]] - u3)
     Dm_inv = tet_poses[e]
-    q = polar_rotation(Ds * Dm_inv, tet_rotation_in[e], rotation_iterations, rotation_tolerance)
+    identity = wp.identity(3, float)
+    q = polar_rotation(identity + Du * Dm_inv, tet_rotation_in[e], rotation_iterations, rotation_tolerance)
     tet_rotation_out[e] = q
-    g = Dm_inv * wp.transpose(wp.quat_to_matrix(q))  # row l: (R grad N_l)^T
+    RT = wp.transpose(wp.quat_to_matrix(q))
+    g = Dm_inv * RT  # row l: (R grad N_l)^T
     tet_rotated_gradients[e] = g
     gT = wp.transpose(g)
     c = tet_stiffness[e]
 
     Ks = wp.mat33(0.0)
     if with_rotation_stiffness != 0:
-        Ks = rotation_stiffness(Ds * g, c[0], c[1])
+        Ks = rotation_stiffness(RT + Du * g, c[0], c[1])
     tet_rotation_stiffness[e] = Ks
 
     v3 = particle_qd[t[3]]
     Dv = wp.matrix_from_cols(particle_qd[t[0]] - v3, particle_qd[t[1]] - v3, particle_qd[t[2]] - v3)
     # strain and damping in one Hooke stress, as in the thesis's form: computed apart, their
     # float32 rounding lets a thin element far from the origin creep instead of resting
-    stress = hooke((Ds + velocity_scale * Dv) * g - wp.identity(3, float), c[0], c[1])
+    stress = hooke(RT - identity + (Du + velocity_scale * Dv) * g, c[0], c[1])
     stress = stress + velocity_scale * wp.skew(Ks * axial(Dv * g))
     scatter_columns(t, -stress * gT, particle_f)
-
-    d3 = dv_start[t[3]]
-    Dx = wp.matrix_from_cols(dv_start[t[0]] - d3, dv_start[t[1]] - d3, dv_start[t[2]] - d3)
-    scatter_columns(t, tangent_stress(Dx * g, c[0], c[1], Ks, matrix_scale) * gT, product_start)
 
     # diagonal of the 3x3 block K_ll = mu |g_l|^2 I + (mu + lambda) g_l g_l^T, plus K_G's
     a = c[0] * matrix_scale
@@ -145,19 +146,12 @@ def tet_matvec(
     tet_stiffness: wp.array(dtype=wp.vec2),
     x: wp.array(dtype=wp.vec3),
     scale: float,
-    k: int,
-    rz: wp.array(dtype=float),
-    threshold: wp.array(dtype=float),
     y: wp.array(dtype=wp.vec3),
 ):
     """y += scale K_t x with the tangent stiffness ``K_t = R K R^T + K_G``, matrix-free.
 
-    Uses the rotated gradients and rotation stiffness of the last :func:`tet_forces`. Returns
-    at once when ``rz[k] <= threshold[0]`` (a converged conjugate gradient keeps its launches, which then
-    cost almost nothing, so no host synchronisation is needed).
+    Uses the rotated gradients and rotation stiffness of the last :func:`tet_forces`.
     """
-    if rz[k] <= threshold[0]:
-        return
     e = wp.tid()
     t = tet_indices[e]
     g = tet_rotated_gradients[e]

@@ -202,7 +202,6 @@ def tet_forces(
     tet_stiffness: wp.array2d(dtype=wp.vec2),
     particle_q: wp.array(dtype=wp.vec3),
     particle_qd: wp.array(dtype=wp.vec3),
-    dv_start: wp.array(dtype=wp.vec3),
     tet_rotation_in: wp.array2d(dtype=wp.quat),
     velocity_scale: float,
     matrix_scale: float,
@@ -214,22 +213,18 @@ def tet_forces(
     tet_rotation_stiffness: wp.array2d(dtype=wp.mat33),
     particle_f: wp.array(dtype=wp.vec3),
     particle_diagonal: wp.array(dtype=wp.vec3),
-    product_start: wp.array(dtype=wp.vec3),
 ):
     """Per element, once per step: rotations, rotated gradients and rotation stiffness at the
     Gauss points, and the same three terms as ``tet_p1.tet_forces`` with the tangent stiffness
-    ``K_t``: ``particle_f += -R K (R^T x - X) - c_v K_t v``, ``particle_diagonal += c_A
-    diag(K_t)``, ``product_start += c_A K_t dv0``."""
+    ``K_t``: ``particle_f += -R K (R^T x - X) - c_v K_t v`` and ``particle_diagonal += c_A
+    diag(K_t)``."""
     e = wp.tid()
     t = tet_indices[e]
     X = gather(particle_q, t)
     W = X + velocity_scale * gather(particle_qd, t)  # strain and damping in one stress
-    D = gather(dv_start, t)
     BX = gradient_bases(X)
     BW = gradient_bases(W)
-    BD = gradient_bases(D)
     force = mat14x3()
-    product = mat14x3()
     diagonal = mat10x3()
     for g in range(4):
         Jinv = tet_poses[e, g]
@@ -248,8 +243,6 @@ def tet_forces(
         HW = gauss_gradient(W, BW, g) * gm  # V + c_v (velocity gradient) R^T
         stress = hooke(HW - wp.identity(3, float), c[0], c[1]) + wp.skew(Ks * axial(HW - V))
         force = add_gauss_nodal(force, -stress * gT, g)
-        product = add_gauss_nodal(
-            product, tangent_stress(gauss_gradient(D, BD, g) * gm, c[0], c[1], Ks, matrix_scale) * gT, g)
         # diagonal 3x3 block of node a: mu |r_a|^2 I + (mu + lambda) r_a r_a^T, r_a = R grad N_a
         r = nodal_vectors(gT, gauss_point(g))
         a_coef = matrix_scale * c[0]
@@ -259,7 +252,6 @@ def tet_forces(
             diagonal[a] = (diagonal[a] + a_coef * wp.dot(ra, ra) * wp.vec3(1.0) + b_coef * wp.cw_mul(ra, ra)
                            + matrix_scale * rotation_stiffness_diagonal(Ks, ra))
     scatter(t, finish_nodal(force), particle_f)
-    scatter(t, finish_nodal(product), product_start)
     scatter(t, diagonal, particle_diagonal)
 
 
@@ -271,15 +263,10 @@ def tet_matvec(
     tet_stiffness: wp.array2d(dtype=wp.vec2),
     x: wp.array(dtype=wp.vec3),
     scale: float,
-    k: int,
-    rz: wp.array(dtype=float),
-    threshold: wp.array(dtype=float),
     y: wp.array(dtype=wp.vec3),
 ):
     """y += scale K_t x, matrix-free, with the rotated gradients and rotation stiffness of the
-    last :func:`tet_forces`; returns at once when ``rz[k] <= threshold[0]`` (as ``tet_p1.tet_matvec``)."""
-    if rz[k] <= threshold[0]:
-        return
+    last :func:`tet_forces`."""
     e = wp.tid()
     t = tet_indices[e]
     X = gather(x, t)

@@ -157,25 +157,21 @@ def tri_forces(
     tri_stiffness: wp.array2d(dtype=wp.vec2),
     particle_q: wp.array(dtype=wp.vec3),
     particle_qd: wp.array(dtype=wp.vec3),
-    dv_start: wp.array(dtype=wp.vec3),
     velocity_scale: float,
     matrix_scale: float,
     tri_rotation: wp.array2d(dtype=mat32),
     tri_tension: wp.array2d(dtype=wp.mat22),
     particle_f: wp.array(dtype=wp.vec3),
     particle_diagonal: wp.array(dtype=wp.vec3),
-    product_start: wp.array(dtype=wp.vec3),
 ):
     """Per element, once per step: rotations and tension at the Gauss points, and the same
     three terms as ``tet_p1.tet_forces`` with ``K`` the membrane's corotated plus geometric
-    stiffness: ``particle_f += f(x) - c_v K v``, ``particle_diagonal += c_A diag(K)``,
-    ``product_start += c_A K dv0``. Stores ``R`` and ``A h sigma+`` per point for
+    stiffness: ``particle_f += f(x) - c_v K v`` and ``particle_diagonal += c_A diag(K)``. Stores ``R`` and ``A h sigma+`` per point for
     :func:`tri_matvec`."""
     e = wp.tid()
     t = tri_indices[e]
     X = gather(particle_q, t)
     V = gather(particle_qd, t)
-    D = gather(dv_start, t)
     identity = wp.identity(2, float)
     for g in range(3):
         dN = shape_gradients(gauss_point(g))
@@ -191,9 +187,6 @@ def tri_forces(
         P = R * hooke(RT * (F + velocity_scale * Fv) - identity, c[0], c[1]) + velocity_scale * (Fv * T)
         JinvT = wp.transpose(Jinv)
         scatter(t, -P * JinvT, dN, particle_f)
-        Fd = reference_gradient(D, dN) * Jinv
-        Pd = R * hooke(RT * Fd, c[0], c[1]) + Fd * T
-        scatter(t, (matrix_scale * Pd) * JinvT, dN, product_start)
         # diagonal 3x3 block of node a: R (mu |r|^2 I + (mu + lambda*) r r^T) R^T + (r . T r) I
         for a in range(6):
             r = JinvT * dN[a]
@@ -214,16 +207,10 @@ def tri_matvec(
     tri_tension: wp.array2d(dtype=wp.mat22),
     x: wp.array(dtype=wp.vec3),
     scale: float,
-    k: int,
-    rz: wp.array(dtype=float),
-    threshold: wp.array(dtype=float),
     y: wp.array(dtype=wp.vec3),
 ):
     """y += scale K x (corotated membrane plus geometric stiffness), matrix-free, with the
-    rotations and tension of the last :func:`tri_forces`; returns at once when
-    ``rz[k] <= threshold[0]`` (as ``tet_p1.tet_matvec``)."""
-    if rz[k] <= threshold[0]:
-        return
+    rotations and tension of the last :func:`tri_forces`."""
     e = wp.tid()
     t = tri_indices[e]
     X = gather(x, t)

@@ -158,3 +158,42 @@ def element_set(mesh: TetMesh, decimals: int = 12) -> list:
     the same elements, whatever the numbering of vertices and elements."""
     corners = np.round(mesh.vertices[mesh.tets], decimals)
     return sorted(tuple(sorted(map(tuple, tet.tolist()))) for tet in corners)
+
+
+def _strain_energy(F: np.ndarray, volume_mu: np.ndarray, volume_lambda: np.ndarray) -> float:
+    """``sum V (mu eps:eps + lambda/2 tr(eps)^2)`` with ``eps = sym(R^T F) - I`` (R the polar
+    rotation of F, float64) for deformation gradients F (..., d, d) of square or (3, 2) shape."""
+    U, _, Vt = np.linalg.svd(F, full_matrices=False)
+    S = np.swapaxes(U @ Vt, -1, -2) @ F
+    eps = 0.5 * (S + np.swapaxes(S, -1, -2)) - np.eye(F.shape[-1])
+    tr = np.trace(eps, axis1=-2, axis2=-1)
+    return float(np.sum(volume_mu * np.sum(eps * eps, axis=(-2, -1)) + 0.5 * volume_lambda * tr ** 2))
+
+
+def mechanical_energy(model, state) -> float:
+    """Kinetic plus elastic energy (J) of a model's state: the corotational strain energy of
+    linear or quadratic tetrahedra (at the Gauss points) or of a shell's membrane plus its hinge
+    bending energy, computed here in float64 from the model's rest frames."""
+    from wcut import p2, shell
+
+    q = state.particle_q.numpy().astype(np.float64)
+    energy = 0.5 * float(np.sum(model.particle_mass.numpy()[:, None] * state.particle_qd.numpy().astype(np.float64) ** 2))
+    if model.tet_count and model.tet_order == 1:
+        x = q[model.tet_indices.numpy()]
+        Ds = np.stack([x[:, 0] - x[:, 3], x[:, 1] - x[:, 3], x[:, 2] - x[:, 3]], axis=2)
+        c = model.tet_stiffness.numpy().astype(np.float64)
+        energy += _strain_energy(Ds @ model.tet_poses.numpy().astype(np.float64), c[:, 0], c[:, 1])
+    elif model.tet_count:
+        dN = p2.shape_gradients(p2.GAUSS_POINTS)  # (4, 10, 3)
+        F = np.einsum("mai,gaj->mgij", q[model.tet_indices.numpy()], dN) @ model.tet_poses.numpy().astype(np.float64)
+        c = model.tet_stiffness.numpy().astype(np.float64)
+        energy += _strain_energy(F, c[..., 0], c[..., 1])
+    if model.tri_count:
+        dN = shell.shape_gradients(shell.GAUSS_POINTS)  # (3, 6, 2)
+        F = np.einsum("mai,gaj->mgij", q[model.tri_indices.numpy()], dN) @ model.tri_poses.numpy().astype(np.float64)
+        c = model.tri_stiffness.numpy().astype(np.float64)
+        energy += _strain_energy(F, c[..., 0], c[..., 1])
+        energy += shell.bending_energy(q, model.edge_indices.numpy(), model.edge_weights.numpy().astype(np.float64),
+                                       model.edge_stiffness.numpy().astype(np.float64),
+                                       model.edge_rest_curvature.numpy().astype(np.float64))
+    return energy

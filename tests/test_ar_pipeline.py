@@ -200,7 +200,7 @@ def test_a_diverging_model_is_a_simulation_error(side_capture):
     tracker = ArTracker(capture, next(frames), cut=False)
     tracker.step(next(frames))  # a sound step passes the check
     q = tracker.state.particle_q.numpy()
-    q[0] += 1.0e3  # a vertex thrown a kilometre away, finite: check_finite lets it through
+    q[0] += 1.0e3  # a vertex thrown a kilometre away, finite: check lets it through
     tracker.state.particle_q.assign(q)
     with pytest.raises(SimulationError, match="diverged"):
         tracker._check_bounded()

@@ -15,15 +15,19 @@ METHOD_KEYS = {"method", "epsilon", "cut_elements", "added_nodes_per_cut_element
 
 P2_KEYS = {"name", "tets", "nodes", "step_ms", "steps_per_second", "cpu_threads", "step_ms_one_thread",
            "forces_ns_per_element", "matvec_ns_per_element", "p1_same_corners_step_ms", "cg_iterations"}
+ACCURACY_KEYS = {"name", "youngs_modulus", "tets", "nodes", "static_tip_mm", "steps", "settled", "step_ms",
+                 "cg_iterations", "tip_error", "jacobi_step_ms", "jacobi_cg_iterations", "jacobi_capped",
+                 "jacobi_step_ratio"}
 #: Two short beams of 1 cm cells with the 4 x 5 cross-section of wcut.bench.CUT_SCENES.
 TINY_CUTS = (("tiny_cut", (6, 4, 5), (0.06, 0.04, 0.05)), ("tiny_cut2", (10, 4, 5), (0.10, 0.04, 0.05)))
 
 
 def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     path = tmp_path / "bench.json"
-    result = run_benchmarks(path, quick=True, progress=False, scenes=(("tiny", (2, 2, 4), (0.02, 0.02, 0.04)),),
+    tiny = (("tiny", (2, 2, 4), (0.02, 0.02, 0.04)),)
+    result = run_benchmarks(path, quick=True, progress=False, scenes=tiny,
                             cut_scenes=TINY_CUTS, p2_scenes=(("tiny_p2", (2, 2, 4), (0.02, 0.02, 0.04)),),
-                            ar_frames=6)
+                            ar_frames=6, accuracy_scenes=tiny, accuracy_moduli=(1.0e6,))
     written = json.loads(path.read_text())
     assert written == json.loads(json.dumps(result))
     assert written["cores"] >= 1
@@ -40,11 +44,17 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     assert detection["features"] == 500 and 5000 < detection["pairs"] < 9000 and detection["update_ms"] > 0
     assert loop["frames"] == 7 and loop["features"] > 300 and loop["fps_mean"] > 0
 
+    # time to accuracy: the default solver settles on the static deflection of the scipy reference
+    (accuracy,) = written["time_to_accuracy"]
+    assert set(accuracy) == ACCURACY_KEYS
+    assert accuracy["settled"] and accuracy["tip_error"] < 0.01, accuracy
+    assert accuracy["static_tip_mm"] > 0 and accuracy["cg_iterations"] >= 1 and accuracy["jacobi_cg_iterations"] >= 1
+
     # quadratic elements: same corners, plus one node per edge
     (p2,) = written["quadratic"]
     assert set(p2) == P2_KEYS
     assert p2["tets"] == 5 * 2 * 2 * 4 and p2["nodes"] > 3 * 3 * 5
-    for key in P2_KEYS - {"name", "tets", "nodes", "cg_iterations"}:
+    for key in P2_KEYS - {"name", "tets", "nodes"}:
         assert p2[key] > 0, key
     assert abs(p2["steps_per_second"] - 1e3 / p2["step_ms"]) < 0.01 * p2["steps_per_second"] + 0.1
 
@@ -91,8 +101,9 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
 
 def test_benchmark_without_cut_scenes_reports_no_cut_results(tmp_path):
     result = run_benchmarks(tmp_path / "bench.json", quick=True, progress=False, scenes=(), cut_scenes=(),
-                            p2_scenes=(), ar_frames=0)
+                            p2_scenes=(), ar_frames=0, accuracy_scenes=())
     assert result["scenes"] == [] and result["cut_events"] == [] and result["quadratic"] == []
+    assert result["time_to_accuracy"] == []
     assert "ar_loop" not in result and "ar_detection" not in result
     assert "cut_event_size_ratio" not in result and "cut_methods" not in result and "topology_operators" not in result
     assert json.loads((tmp_path / "bench.json").read_text()) == result

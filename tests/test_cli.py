@@ -101,6 +101,7 @@ def test_run_writes_a_valid_animation(tmp_path, tiny_scene, capsys, ext):
     lines = captured.out.splitlines()
     assert "frames: 2" in lines
     assert any(re.fullmatch(r"mean step: \d+\.\d+ ms \(8 steps\)", line) for line in lines), lines
+    assert any(re.fullmatch(r"real-time factor: \d+\.\d\d \(.*\)", line) for line in lines), lines
     assert "nodes: 45" in lines
     assert "elements: 80" in lines
     assert f"wrote {out}" in lines

@@ -115,7 +115,7 @@ def test_a_diverging_solver_is_reported_as_a_failed_run_not_raised(tool, monkeyp
         if len(calls) == 3:
             raise wcut.SimulationError("the simulation diverged: 1 non-finite vertex updates")
 
-    monkeypatch.setattr(SolverCorotational, "check_finite", diverge)
+    monkeypatch.setattr(SolverCorotational, "check", diverge)
     row = tool.run(tool.make_case("inclined", 30.0), "none", 4, 10, 1e-3)
     assert row["status"] == "failed" and row["finite"] is False and row["steps_run"] == 3
     assert "step 2" in row["failure"] and "diverged" in row["failure"]

@@ -1,16 +1,20 @@
 """SolverCorotational: the implicit step against scipy, statics against beam theory,
-conservation, dissipation, determinism and embedding in a user's Warp loop."""
+conservation, dissipation, determinism, embedding in a user's Warp loop, stability at any
+stiffness with the default settings, and blow-ups reported as errors."""
 
 import numpy as np
 import pytest
 import warp as wp
+from conftest import mechanical_energy
 
 import wcut
+from wcut.cut import Cutter, Plane
 from wcut.errors import SimulationError
 from wcut.model import Model, Attachments
 from wcut.reference import ScipyCorotationalStep
 from wcut.quadratic import to_quadratic
 from wcut.solver import SolverCorotational
+from wcut.topology import TetTopology
 
 
 def clamped_beam(cells=(8, 2, 2), **material):
@@ -215,7 +219,7 @@ def test_divergence_is_reported():
     state.particle_q.assign(q)
     solver.step(state, model.state(), None, 0.01)
     with pytest.raises(SimulationError, match="diverged"):
-        solver.check_finite()
+        solver.check()
 
 
 @pytest.mark.parametrize("cpu_threads, products_too", [(1, False), (2, False), (2, True)])
@@ -230,6 +234,8 @@ def test_step_allocates_nothing(cpu_threads, products_too, request):
     solver = SolverCorotational(model, cg_iterations=10, cpu_threads=cpu_threads)
     assert solver.split_product == products_too
     a, b, control = model.state(), model.state(), model.control()
+    solver.step(a, b, control, 0.01)  # the first step of a dt factors the preconditioner
+    a, b = b, a
     report = io.StringIO()
     with wp.ScopedMemoryTracker("step", print=False) as tracker:
         tracker.clear()  # the totals are global: drop those of an earlier tracker in this process
@@ -387,7 +393,7 @@ def test_rotation_stiffness_keeps_a_stretched_band_stable_at_large_steps():
     """A band held at both ends stretched by 30% (tension ~2.3e4 Pa, 1 cm elements: the
     explicit limit dt ~ h sqrt(rho/sigma) is about 2 ms), bowed 2 mm, stepped at 30 ms for 1 s:
     with the rotation stiffness in the system matrix it settles straight; with R K R^T alone
-    (the thesis's system) it blows up."""
+    (the thesis's system) it does not settle."""
     mesh = wcut.beam(20, 2, 2, size=(0.2, 0.02, 0.02))
     rest = mesh.vertices
     ends = np.flatnonzero((rest[:, 0] < 1e-9) | (rest[:, 0] > 0.2 - 1e-9))
@@ -407,7 +413,7 @@ def test_rotation_stiffness_keeps_a_stretched_band_stable_at_large_steps():
             bow = state.particle_q.numpy()[middle, 2].mean() - rest[middle, 2].mean()
             assert abs(bow) < 1e-4  # straight again (it started 2 mm bowed)
     assert speeds[True] < 1e-3, speeds
-    assert not speeds[False] < 1.0, speeds
+    assert speeds[False] > 1e-2, speeds
 
 
 def _pulled_beam():
@@ -475,18 +481,15 @@ def test_element_kernels_split_over_threads_equal_one_launch(order, split_produc
         assert solver.cpu_threads == threads
         state, out = model.state(), model.state()
         state.particle_q.assign(q)
-        solver.dv.assign(dv)
         solver.launch_element_pass(state, out, 0.01)
-        start = solver._q.numpy().copy()  # the element pass's product with the warm start
-        solver._record_cg(0.01)
-        solver._p.assign(solver.dv)
-        solver._rz.fill_(1.0)  # not converged: the product runs
         assert not any(p.numpy().any() for p in solver._partials)  # the element pass added its own
-        solver._cg_commands[1].launch()  # q += c_A K_t p of iteration 0; cg_apply_mass would add the rows
-        product = solver._q.numpy() + solver._partials[2].numpy().sum(axis=0) - start
+        solver._p.assign(dv)
+        solver._q.zero_()
+        solver._record_tet_matvec(solver.stiffness_scale(0.01)).launch()  # q += c_A K_t p; cg_apply_mass adds the rows
+        product = solver._q.numpy() + solver._partials[2].numpy().sum(axis=0)
         passes[threads] = [a.numpy() for a in (solver._force, solver.particle_diagonal, out.tet_rotation,
                                                solver.tet_rotated_gradients, solver.tet_rotation_stiffness)]
-        passes[threads] += [start, product]
+        passes[threads] += [product]
     for one, split in zip(passes[1], passes[3]):
         assert np.abs(one).max() > 0.0
         np.testing.assert_allclose(split, one, rtol=0.0, atol=1e-5 * np.abs(one).max())
@@ -627,3 +630,102 @@ def test_the_split_element_pass_follows_a_new_time_step_and_new_settings(monkeyp
     assert scale > 1e-3
     for one, two in zip(*ends):
         assert np.abs(two - one).max() < 1e-4 * scale
+
+
+# -- stability and accuracy at any stiffness with the default settings ------------------------
+
+
+def _released_bodies():
+    """A solid beam (P1 and P2) and a sheet, each to be released from a stretched and bent shape."""
+    return {"p1": wcut.beam(4, 2, 2, size=(0.2, 0.05, 0.05)),
+            "p2": to_quadratic(wcut.beam(2, 1, 1, size=(0.2, 0.05, 0.05))),
+            "shell": wcut.rectangle_sheet(4, 4, (0.1, 0.1))}
+
+
+@pytest.mark.parametrize("dt", [1.0e-4, 1.0 / 30.0])
+@pytest.mark.parametrize("poisson_ratio", [0.3, 0.49])
+@pytest.mark.parametrize("youngs_modulus", [1.0e3, 1.0e6, 1.0e9])
+@pytest.mark.parametrize("kind", ["p1", "p2", "shell"])
+def test_a_released_body_stays_finite_and_never_gains_energy(kind, youngs_modulus, poisson_ratio, dt):
+    """A free, undamped body released from a stretched and bent shape, default solver settings:
+    its mechanical energy (float64, conftest.mechanical_energy) never grows from one step to the
+    next beyond float32 rounding (1e-6 of the start), whatever the stiffness, Poisson's ratio and
+    time step: implicit Euler dissipates."""
+    mesh = _released_bodies()[kind]
+    model = Model(mesh, youngs_modulus=youngs_modulus, poisson_ratio=poisson_ratio, gravity=(0.0, 0.0, 0.0))
+    rest = model.particle_q.numpy().astype(np.float64)
+    centre, length = rest.mean(axis=0), np.ptp(rest[:, 0])
+    bend = np.sin(np.pi * (rest[:, 0] - rest[:, 0].min()) / length)
+    start = centre + (rest - centre) * [1.1, 1.0, 0.97] + np.outer(bend, [0.0, 0.0, 0.01 * length])
+    solver = SolverCorotational(model)
+    state, scratch = model.state(), model.state()
+    state.particle_q.assign(start.astype(np.float32))
+    energies = [mechanical_energy(model, state)]
+    for _ in range(10):
+        solver.step(state, scratch, None, dt)
+        state, scratch = scratch, state
+        energies.append(mechanical_energy(model, state))
+        assert solver.last_cg_iterations < solver.cg_iterations  # converged, not stopped by the cap
+    solver.check()
+    assert np.isfinite(state.particle_q.numpy()).all()
+    growth = np.diff(energies)
+    assert growth.max() <= 1e-6 * energies[0], (energies, growth.max() / energies[0])
+
+
+def test_the_benchmark_beam_settles_on_its_static_solution():
+    """SOFA's benchmark beam (10x10x40, clamped at z = 0, transverse gravity, 1 MPa) with the
+    default solver, one step per 1/60 s frame: it settles on the static deflection of the same
+    corotational model that scipy finds by Newton's method (within 1%; the static answer of
+    the linear model, 38.4 mm, is 1.6% off the corotational one)."""
+    tip = _settle_beam(wcut.beam(10, 10, 40, size=(0.1, 0.1, 0.4)))
+    assert abs(tip["settled"] - tip["static"]) < 0.01 * abs(tip["static"]), tip
+
+
+def test_the_benchmark_beam_settles_after_a_cut_that_leaves_slivers():
+    """The same beam cut into the top 30% of its depth at mid-length by a plane, with no
+    snapping (epsilon 0), so the cut leaves hundreds of slivers (below 1e-3 of the median
+    volume) next to the mesh's nodes: it settles on the static deflection of the cut mesh."""
+    mesh = wcut.beam(10, 10, 40, size=(0.1, 0.1, 0.4))
+    topo = TetTopology(mesh)
+    plane = Plane([0.0, 0.0, 0.2031], [0.02, 0.03, 1.0])
+    Cutter(topo, epsilon=0.0).cut(plane, bounds=([-1.0, 0.0704, -1.0], [1.0, 1.0, 1.0]))
+    cut = topo.to_mesh()
+    volumes = cut.volumes()
+    assert np.count_nonzero(volumes < 1e-3 * np.median(volumes)) > 100  # slivers
+    tip = _settle_beam(cut)
+    assert abs(tip["settled"] - tip["static"]) < 0.01 * abs(tip["static"]), tip
+
+
+def _settle_beam(mesh, youngs_modulus=1.0e6):
+    """Tip deflection (m, along gravity) of a beam clamped at z = 0 after 2.5 s of 1/60 s steps,
+    and its static deflection from the scipy reference."""
+    fixed = mesh.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9))
+    model = Model(mesh, density=1000.0, youngs_modulus=youngs_modulus, poisson_ratio=0.3, gravity=(0.0, -9.81, 0.0),
+                  fixed=fixed)
+    tip = int(np.argmax(mesh.vertices[:, 2] - 1e-3 * mesh.vertices[:, 1]))
+    state = run(model, SolverCorotational(model), 150, 1.0 / 60.0)
+    ref = ScipyCorotationalStep(mesh.vertices, mesh.tets, density=1000.0, youngs_modulus=youngs_modulus,
+                                poisson_ratio=0.3, gravity=(0.0, -9.81, 0.0), fixed=fixed)
+    static = ref.static_equilibrium()
+    return {"settled": float(state.particle_q.numpy()[tip, 1] - mesh.vertices[tip, 1]),
+            "static": float(static[tip, 1] - mesh.vertices[tip, 1])}
+
+
+def test_a_blow_up_is_an_error_naming_the_step():
+    """A vertex thrown at 1e4 m/s (far beyond the 31 m/s wave speed of the material) is a
+    diverged run, not an animation: check() names the steps."""
+    _, model, _ = clamped_beam()
+    solver = SolverCorotational(model)
+    state, scratch = model.state(), model.state()
+    for _ in range(3):
+        solver.step(state, scratch, None, 0.01)
+        state, scratch = scratch, state
+    solver.check()  # a falling beam is fine
+    assert 0 < solver.speed_limit < 1e3
+    qd = state.particle_qd.numpy()
+    qd[-1] = [1.0e4, 0.0, 0.0]
+    state.particle_qd.assign(qd)
+    solver.step(state, scratch, None, 0.01)
+    with pytest.raises(SimulationError, match=r"diverged in step 4 .*m/s"):
+        solver.check()
+    solver.check()  # reported once: the next check looks at the steps since

@@ -21,22 +21,21 @@ def cube_mesh():
     return wcut.beam(3, 3, 3, size=(0.3, 0.3, 0.3))
 
 
-def element_terms(model, x, v=None, dv=None, rotation_iterations=60, velocity_scale=0.0, matrix_scale=1.0,
+def element_terms(model, x, v=None, rotation_iterations=60, velocity_scale=0.0, matrix_scale=1.0,
                   rotation_stiffness=False):
-    """Launch tet_forces; returns forces, rotated gradients, start product and diagonal (float64),
-    and the rotation stiffness ``"tangent"`` (zero unless ``rotation_stiffness``)."""
+    """Launch tet_forces; returns forces, rotated gradients and diagonal (float64), and the
+    rotation stiffness ``"tangent"`` (zero unless ``rotation_stiffness``)."""
     n = model.particle_count
     zeros = np.zeros((n, 3))
-    arrays = {name: wp.zeros(n, dtype=wp.vec3) for name in ("f", "diag", "start")}
+    arrays = {name: wp.zeros(n, dtype=wp.vec3) for name in ("f", "diag")}
     q = wp.full(model.tet_count, wp.quat_identity(), dtype=wp.quat)
     g = wp.zeros(model.tet_count, dtype=wp.mat33)
     tangent = wp.zeros(model.tet_count, dtype=wp.mat33)
     wp.launch(tet_p1.tet_forces, model.tet_count,
-              inputs=[model.tet_indices, model.tet_poses, model.tet_stiffness,
-                      wp.array(x, dtype=wp.vec3), wp.array(zeros if v is None else v, dtype=wp.vec3),
-                      wp.array(zeros if dv is None else dv, dtype=wp.vec3), q, velocity_scale, matrix_scale,
-                      rotation_iterations, 1e-7, int(rotation_stiffness)],
-              outputs=[q, g, tangent, arrays["f"], arrays["diag"], arrays["start"]])
+              inputs=[model.tet_indices, model.tet_poses, model.tet_stiffness, model.particle_q,
+                      wp.array(x, dtype=wp.vec3), wp.array(zeros if v is None else v, dtype=wp.vec3), q,
+                      velocity_scale, matrix_scale, rotation_iterations, 1e-7, int(rotation_stiffness)],
+              outputs=[q, g, tangent, arrays["f"], arrays["diag"]])
     return ({name: a.numpy().astype(np.float64) for name, a in arrays.items()}
             | {"gradients": g, "rotation": q, "tangent": tangent})
 
@@ -44,10 +43,9 @@ def element_terms(model, x, v=None, dv=None, rotation_iterations=60, velocity_sc
 def stiffness_product(model, terms, p, scale=1.0):
     """``scale K_t p`` with the rotated gradients and rotation stiffness of ``element_terms``."""
     y = wp.zeros(model.particle_count, dtype=wp.vec3)
-    rz, threshold = wp.array([1.0], dtype=float), wp.array([0.0], dtype=float)
     wp.launch(tet_p1.tet_matvec, model.tet_count,
               inputs=[model.tet_indices, terms["gradients"], terms["tangent"], model.tet_stiffness,
-                      wp.array(p, dtype=wp.vec3), scale, 0, rz, threshold],
+                      wp.array(p, dtype=wp.vec3), scale],
               outputs=[y])
     return y.numpy().astype(np.float64)
 
@@ -147,9 +145,6 @@ def test_matrix_free_product_is_symmetric_and_equals_the_assembled_matrix(cube_m
     np.testing.assert_allclose(Ku.ravel(), K @ u.ravel(), atol=1e-4 * np.abs(Ku).max())
     assert abs(np.vdot(w, Ku) - np.vdot(u, Kw)) < 1e-5 * abs(np.vdot(u, Ku))
     np.testing.assert_allclose(terms["diag"].ravel(), K.diagonal(), rtol=1e-4)
-    # the fused warm-start product of tet_forces is the same operator
-    start = element_terms(model, x, dv=u, matrix_scale=0.5)["start"]
-    np.testing.assert_allclose(start, 0.5 * Ku, atol=1e-4 * np.abs(Ku).max())
 
 
 def _tension_state(mesh, seed):
@@ -210,8 +205,6 @@ def test_tangent_product_is_symmetric_and_adds_a_positive_semidefinite_term(cube
             unit[node, axis] = 1.0
             column = stiffness_product(model, full, unit)
             assert column[node, axis] == pytest.approx(full["diag"][node, axis], rel=1e-4)
-    start = element_terms(model, x, dv=u, matrix_scale=0.5, rotation_stiffness=True)["start"]
-    np.testing.assert_allclose(start, 0.5 * Ku, atol=1e-4 * np.abs(Ku).max())
     # the independently assembled reference (eigen-decomposition by numpy) agrees
     ref = ScipyCorotationalStep(cube_mesh.vertices, cube_mesh.tets, density=1000.0, youngs_modulus=E,
                                 poisson_ratio=NU, rotation_stiffness=True)

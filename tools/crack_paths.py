@@ -44,7 +44,7 @@ the crack starts at a strain of about 0.05 (step 49 at the default rate) and cut
 
 A run ends after ``--steps`` steps or as soon as the crack from the notch tip reaches the outer
 boundary (the edges opened from the tip, :func:`tip_component`, touch it). It fails
-when the solver diverges (``SolverCorotational.check_finite`` raises :class:`wcut.SimulationError`),
+when the solver diverges (``SolverCorotational.check`` raises :class:`wcut.SimulationError`),
 when the mesh after an event is not a valid sheet of the initial rest area
 (:func:`wcut.topology.shell.check_shell`), when anything else raises, or when no crack starts.
 
@@ -192,7 +192,7 @@ def run(case: Case, variant: str, cells: int, steps: int, strain_rate: float) ->
             state, scratch = scratch, state
             steps_run = step + 1
             try:
-                solver.check_finite()
+                solver.check()
             except SimulationError as exc:
                 finite = False
                 raise RunFailure(f"step {step}: {exc}") from None

@@ -74,6 +74,19 @@ def bench_ar_loop(frames: int, scene=AR_SCENE) -> dict:
             "features": m["features"], "pairs": m["pairs_initial"], "fps_mean": round(m["fps_mean"], 1),
             "frame_ms_mean": round(m["frame_ms_mean"], 2), "detection_ms_mean": round(m["detection_ms_mean"], 4),
             "cuts_detected": m["cuts_detected"], "dice_final": round(m["dice_final"], 4)}
+#: Time to accuracy: SOFA's beams (clamped at z = 0, transverse gravity, 1000 kg/m^3, Poisson
+#: 0.3) at these Young's moduli (Pa), one step per 1/60 s frame, Rayleigh mass damping 1/s so
+#: that the softest beam settles within seconds; settled when the tip has stayed within 1% of its
+#: static deflection for 30 steps, or after 30 s simulated
+ACCURACY_MODULI = (1.0e5, 1.0e6, 1.0e7)
+ACCURACY_DT = 1.0 / 60.0
+ACCURACY_DAMPING = 1.0
+ACCURACY_MAX_TIME = 30.0
+SETTLED_STEPS = 30
+#: steps of the Jacobi-preconditioned CG run beside each (to the same tolerance)
+JACOBI_STEPS = 20
+
+
 #: Where the plane crosses its cell, as a fraction of the cell (not through a node layer).
 CUT_OFFSET = 0.37
 
@@ -89,17 +102,21 @@ def _median_seconds(fn, repeats: int, warmup: int = 1) -> float:
     return statistics.median(samples)
 
 
-def _bent_solvers(model, control=None, thread_counts=(None, 1)):
+#: SOFA's benchmark solver: 20 Jacobi-preconditioned CG iterations, every one run
+FIXED_ITERATIONS = dict(cg_iterations=CG_ITERATIONS, cg_tolerance=0.0, preconditioner="jacobi")
+
+
+def _bent_solvers(model, control=None, thread_counts=(None, 1), settings=FIXED_ITERATIONS):
     """One solver per entry of ``thread_counts`` (``cpu_threads``; None: the default), each
     with its own state stepped 10 times, so rotations are not the identity; a dict keyed by
-    the entry, of ``(solver, state, scratch)``."""
+    the entry, of ``(solver, state, scratch)``. ``settings``: the solver's other arguments."""
     runs = {}
     for threads in dict.fromkeys(thread_counts):
         same = [run for run in runs.values() if run[0].cpu_threads == threads]
         if same:  # the default came to this count: one solver serves both
             runs[threads] = same[0]
             continue
-        solver = SolverCorotational(model, cg_iterations=CG_ITERATIONS, cg_tolerance=0.0, cpu_threads=threads)
+        solver = SolverCorotational(model, **settings, cpu_threads=threads)
         state, scratch = model.state(), model.state()
         for _ in range(10):
             solver.step(state, scratch, control, DT)
@@ -108,9 +125,10 @@ def _bent_solvers(model, control=None, thread_counts=(None, 1)):
     return runs
 
 
-def _alternating_step_seconds(runs, control, repeats: int) -> dict:
+def _alternating_step_seconds(runs, control, repeats: int, iterations: list | None = None) -> dict:
     """Median step time of each run of :func:`_bent_solvers`, timed in turn, step after step,
-    so that a shared machine's load changes touch them alike."""
+    so that a shared machine's load changes touch them alike (the CG iterations of every timed
+    step appended to ``iterations``)."""
     distinct = {id(run): run for run in runs.values()}
     samples = {key: [] for key in distinct}
     for k in range(repeats + 1):  # the first round warms up
@@ -120,6 +138,8 @@ def _alternating_step_seconds(runs, control, repeats: int) -> dict:
             wp.synchronize_device(solver.model.device)
             if k:
                 samples[key].append(time.perf_counter() - start)
+                if iterations is not None:
+                    iterations.append(solver.last_cg_iterations)
     return {key: statistics.median(samples[id(run)]) for key, run in runs.items()}
 
 
@@ -131,6 +151,69 @@ def _scene_model(cells, size, device=None):
     return mesh, model, fixed
 
 
+def static_tip_deflection(mesh, fixed, youngs_modulus: float, tip: int) -> np.ndarray:
+    """The tip's static deflection (m) of a benchmark beam under gravity, from the independent
+    scipy reference (``ScipyCorotationalStep.static_equilibrium``), the load split into more
+    increments while Newton's method does not converge."""
+    from .errors import SimulationError
+    from .reference import ScipyCorotationalStep
+
+    ref = ScipyCorotationalStep(mesh.vertices, mesh.tets, density=1000.0, youngs_modulus=youngs_modulus,
+                                poisson_ratio=0.3, gravity=(0.0, -9.81, 0.0), fixed=fixed)
+    for load_steps in (1, 4, 16):
+        try:
+            return ref.static_equilibrium(load_steps=load_steps)[tip] - mesh.vertices[tip]
+        except SimulationError:
+            continue
+    raise SimulationError("static equilibrium of the benchmark beam: Newton's method did not converge")
+
+
+def _settle(model, solver, tip: int, static: np.ndarray, max_steps: int) -> dict:
+    """Step from rest until the tip has stayed within 1% of ``static`` for
+    :data:`SETTLED_STEPS` steps (or ``max_steps``); mean wall time and CG iterations per step."""
+    state, scratch = model.state(), model.state()
+    rest, size = model.particle_q.numpy()[tip].astype(np.float64), float(np.linalg.norm(static))
+    seconds, iterations, within, steps = 0.0, 0, 0, 0
+    while steps < max_steps and within < SETTLED_STEPS:
+        start = time.perf_counter()
+        solver.step(state, scratch, None, ACCURACY_DT)
+        wp.synchronize_device(model.device)
+        seconds += time.perf_counter() - start
+        state, scratch = scratch, state
+        steps += 1
+        iterations += solver.last_cg_iterations
+        if steps % 10 == 0:
+            solver.check()
+        error = float(np.linalg.norm(state.particle_q.numpy()[tip] - rest - static))
+        within = within + 1 if error <= 0.01 * size else 0
+    return {"steps": steps, "step_ms": 1e3 * seconds / steps, "iterations": iterations / steps,
+            "settled": within >= SETTLED_STEPS, "tip_error": error / size}
+
+
+def bench_time_to_accuracy(name: str, cells, size, youngs_modulus: float, *, max_time: float = ACCURACY_MAX_TIME,
+                           jacobi_steps: int = JACOBI_STEPS) -> dict:
+    """One case of the time-to-accuracy benchmark: the default solver stepped until settled,
+    and the Jacobi-preconditioned CG to the same tolerance for ``jacobi_steps`` steps beside it
+    (its cap counted when reached); tip errors relative to the static deflection."""
+    mesh = beam(*cells, size=size)
+    fixed = mesh.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9))
+    model = Model(mesh, density=1000.0, youngs_modulus=youngs_modulus, poisson_ratio=0.3,
+                  rayleigh_mass=ACCURACY_DAMPING, gravity=(0.0, -9.81, 0.0), fixed=fixed)
+    tip = int(np.argmax(mesh.vertices[:, 2] + 1e-3 * mesh.vertices[:, 0] + 1e-6 * mesh.vertices[:, 1]))
+    static = static_tip_deflection(mesh, fixed, youngs_modulus, tip)
+    solver = SolverCorotational(model)
+    ours = _settle(model, solver, tip, static, int(round(max_time / ACCURACY_DT)))
+    jacobi_solver = SolverCorotational(model, preconditioner="jacobi")
+    jacobi = _settle(model, jacobi_solver, tip, static, jacobi_steps)
+    capped = jacobi["iterations"] >= jacobi_solver.cg_iterations
+    return {"name": name, "youngs_modulus": youngs_modulus, "tets": model.tet_count, "nodes": model.particle_count,
+            "static_tip_mm": round(1e3 * float(np.linalg.norm(static)), 3), "steps": ours["steps"],
+            "settled": ours["settled"], "step_ms": round(ours["step_ms"], 2), "cg_iterations": round(ours["iterations"], 2),
+            "tip_error": round(ours["tip_error"], 5), "jacobi_step_ms": round(jacobi["step_ms"], 2),
+            "jacobi_cg_iterations": round(jacobi["iterations"], 1), "jacobi_capped": bool(capped),
+            "jacobi_step_ratio": round(jacobi["step_ms"] / ours["step_ms"], 1)}
+
+
 def _warp_optim_cg(solver: SolverCorotational, dt: float):
     """The same system solved by warp.optim.linear.cg with a LinearOperator (same kernels)."""
     from warp.optim import linear
@@ -139,14 +222,13 @@ def _warp_optim_cg(solver: SolverCorotational, dt: float):
 
     m, n, d = solver.model, solver.model.particle_count, solver.model.device
     scale = solver.stiffness_scale(dt)
-    rz_one, zero = wp.array([1.0], dtype=float, device=d), wp.zeros(1, dtype=float, device=d)
 
     def matvec(x, y, z, alpha, beta):
         wp.launch(cg.operator_mass_axpby, n, inputs=[x, y, solver.inv_diagonal, solver.mass_scale, alpha, beta],
                   outputs=[z], device=d)
         wp.launch(tet_p1.tet_matvec, m.tet_count, device=d,
                   inputs=[m.tet_indices, solver.tet_rotated_gradients, solver.tet_rotation_stiffness,
-                          m.tet_stiffness, x, alpha * scale, 0, rz_one, zero], outputs=[z])
+                          m.tet_stiffness, x, alpha * scale], outputs=[z])
         wp.launch(cg.operator_restore_fixed_rows, n, inputs=[x, y, solver.inv_diagonal, alpha, beta], outputs=[z],
                   device=d)
 
@@ -176,8 +258,7 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
     steps_s = _alternating_step_seconds(runs, control, repeats)
     step_s = steps_s[None]
     solver, state, scratch = runs[1]  # the kernels' costs below are per element on one thread
-    cg_fused_s = _median_seconds(lambda: ([c.launch() for c in solver._cg_commands],
-                                          wp.synchronize_device(model.device)), repeats)
+    cg_fused_s = _median_seconds(lambda: (solver.launch_cg(), wp.synchronize_device(model.device)), repeats)
     forces_s = _median_seconds(solver.launch_element_pass(state, scratch, DT, record=True).launch, repeats)
     cg_warp_s = _median_seconds(_warp_optim_cg(solver, DT), max(3, repeats // 4))
 
@@ -192,10 +273,9 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
     rotation_s = _median_seconds(rot.launch, repeats)
     svd_s = _median_seconds(svd.launch, repeats)
     y = wp.zeros(model.particle_count, dtype=wp.vec3, device=model.device)
-    one, zero = wp.array([1.0], dtype=float, device=model.device), wp.zeros(1, dtype=float, device=model.device)
     matvec = wp.launch(tet_p1.tet_matvec, model.tet_count, device=model.device, record_cmd=True,
                        inputs=[model.tet_indices, solver.tet_rotated_gradients, solver.tet_rotation_stiffness,
-                               model.tet_stiffness, state.particle_qd, 1.0, 0, one, zero], outputs=[y])
+                               model.tet_stiffness, state.particle_qd, 1.0], outputs=[y])
     matvec_s = _median_seconds(matvec.launch, repeats * 5)
 
     ref = ScipyCorotationalStep(mesh.vertices, mesh.tets, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3,
@@ -224,8 +304,9 @@ def bench_scene(name: str, cells, size, *, repeats: int = 20, reference_repeats:
 
 
 def bench_quadratic(name: str, cells, size, *, repeats: int = 20, device=None) -> dict:
-    """Time a full step and the P2 element kernels on a quadratic beam (straight edges), set up
-    like :func:`bench_scene`, and a step of the linear beam of the same corners beside it."""
+    """Time a full step with the default solver (converged to its tolerance) and the P2 element
+    kernels on a quadratic beam (straight edges), set up like :func:`bench_scene`, and a step of
+    the linear beam of the same corners beside it; ``cg_iterations`` is the mean per step."""
     from .kernels import tet_p2
     from .quadratic import to_quadratic
 
@@ -236,22 +317,22 @@ def bench_quadratic(name: str, cells, size, *, repeats: int = 20, device=None) -
         model = Model(each, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3, rayleigh_mass=0.1,
                       rayleigh_stiffness=0.01, gravity=(9.81, 0.0, 0.0),
                       fixed=each.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9)), device=device)
-        runs = _bent_solvers(model, thread_counts=(None, 1) if label == "p2" else (None,))
-        for threads, seconds in _alternating_step_seconds(runs, None, repeats).items():
+        runs = _bent_solvers(model, thread_counts=(None, 1) if label == "p2" else (None,), settings={})
+        iterations = []
+        for threads, seconds in _alternating_step_seconds(runs, None, repeats, iterations).items():
             times[label, threads] = seconds
         solver, state, scratch = runs[1 if label == "p2" else None]
         threads = runs[None][0].cpu_threads
         if label == "p2":
             forces_s = _median_seconds(solver.launch_element_pass(state, scratch, DT, record=True).launch, repeats)
             y = wp.zeros(model.particle_count, dtype=wp.vec3, device=model.device)
-            one, zero = wp.array([1.0], dtype=float, device=model.device), wp.zeros(1, dtype=float,
-                                                                                     device=model.device)
             matvec = wp.launch(tet_p2.tet_matvec, model.tet_count, device=model.device, record_cmd=True,
                                inputs=[model.tet_indices, solver.tet_rotated_gradients,
-                                       solver.tet_rotation_stiffness, model.tet_stiffness, state.particle_qd, 1.0, 0,
-                                       one, zero], outputs=[y])
+                                       solver.tet_rotation_stiffness, model.tet_stiffness, state.particle_qd, 1.0],
+                               outputs=[y])
             matvec_s = _median_seconds(matvec.launch, repeats * 5)
             p2_nodes, p2_tets, p2_threads = model.particle_count, model.tet_count, threads
+            p2_iterations = float(np.mean(iterations))
     per_element = 1e9 / p2_tets
     return {
         "name": name,
@@ -264,7 +345,7 @@ def bench_quadratic(name: str, cells, size, *, repeats: int = 20, device=None) -
         "forces_ns_per_element": round(forces_s * per_element, 2),
         "matvec_ns_per_element": round(matvec_s * per_element, 2),
         "p1_same_corners_step_ms": round(times["p1", None] * 1e3, 3),
-        "cg_iterations": CG_ITERATIONS,
+        "cg_iterations": round(p2_iterations, 2),
     }
 
 
@@ -416,7 +497,8 @@ def bench_cut_methods(cells, size, epsilons=(0.0, 0.1)) -> list[dict]:
 
 
 def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True, scenes=SCENES,
-                   cut_scenes=CUT_SCENES, p2_scenes=P2_SCENES, ar_frames: int | None = None) -> dict:
+                   cut_scenes=CUT_SCENES, p2_scenes=P2_SCENES, ar_frames: int | None = None,
+                   accuracy_scenes=SCENES, accuracy_moduli=ACCURACY_MODULI) -> dict:
     """Run every benchmark scene, print a table and optionally write JSON (atomically).
 
     ``forces_ns_per_element`` is the once-per-step element kernel (rotation, forces, right-hand
@@ -427,27 +509,34 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
     """
     if json_path is not None:
         check_writable(json_path)  # fail now, not after a minute of benchmarks
+
+    def say(line: str) -> None:  # plain lines, so that progress shows in a log as on a terminal
+        if progress:
+            print(line, file=sys.stderr, flush=True)
+
     records = []
     for i, (name, cells, size) in enumerate(scenes):
-        if progress and sys.stderr.isatty():
-            print(f"[{i + 1}/{len(scenes)}] {name} ...", file=sys.stderr)
+        say(f"[{i + 1}/{len(scenes)}] {name} ...")
         records.append(bench_scene(name, cells, size, repeats=5 if quick else 20, reference_repeats=1 if quick else 3))
     cut_events = []
     for i, (name, cells, size) in enumerate(cut_scenes):
-        if progress and sys.stderr.isatty():
-            print(f"[{i + 1}/{len(cut_scenes)}] cut event {name} ...", file=sys.stderr)
+        say(f"[{i + 1}/{len(cut_scenes)}] cut event {name} ...")
         cut_events.append(bench_cut_event(name, cells, size, repeats=2 if quick else 7))
     quadratic = []
     for i, (name, cells, size) in enumerate(p2_scenes):
-        if progress and sys.stderr.isatty():
-            print(f"[{i + 1}/{len(p2_scenes)}] quadratic {name} ...", file=sys.stderr)
+        say(f"[{i + 1}/{len(p2_scenes)}] quadratic {name} ...")
         quadratic.append(bench_quadratic(name, cells, size, repeats=5 if quick else 20))
+    accuracy = []
+    cases = [(scene, E) for scene in accuracy_scenes for E in accuracy_moduli]
+    for i, ((name, cells, size), E) in enumerate(cases):
+        say(f"[{i + 1}/{len(cases)}] time to accuracy {name} E = {E:g} Pa ...")
+        accuracy.append(bench_time_to_accuracy(name, cells, size, E, max_time=3.0 if quick else ACCURACY_MAX_TIME,
+                                               jacobi_steps=3 if quick else JACOBI_STEPS))
     result = {"device": str(wp.get_device()), "warp": wp.config.version, "cores": available_cores(), "scenes": records,
-              "cut_events": cut_events, "quadratic": quadratic}
+              "cut_events": cut_events, "quadratic": quadratic, "time_to_accuracy": accuracy}
     ar_frames = (20 if quick else 90) if ar_frames is None else ar_frames
     if ar_frames and AR_SCENE.exists():
-        if progress and sys.stderr.isatty():
-            print("augmented reality ...", file=sys.stderr)
+        say("augmented reality ...")
         result["ar_detection"] = bench_detection(repeats=50 if quick else 200)
         result["ar_loop"] = bench_ar_loop(ar_frames)
     if cut_scenes:
@@ -456,6 +545,12 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
         result["topology_operators"] = bench_topology_operators(*cut_scenes[0], repeats=2 if quick else 5)
     if records:
         _print_table(records)
+    if accuracy:
+        _print_rows(accuracy, [("name", "time to accuracy"), ("youngs_modulus", "E Pa"), ("steps", "steps"),
+                               ("settled", "settled"), ("step_ms", "step ms"), ("cg_iterations", "iterations"),
+                               ("tip_error", "tip error"), ("jacobi_step_ms", "Jacobi step ms"),
+                               ("jacobi_cg_iterations", "Jacobi iterations"), ("jacobi_capped", "capped"),
+                               ("jacobi_step_ratio", "Jacobi / ours")])
     if cut_scenes:
         _print_rows(cut_events, [("name", "cut event"), ("tets", "tets"), ("cut_elements", "cut el"),
                                  ("event_ms", "event ms"), ("event_min_ms", "fastest"), ("cut_ms", "cut ms"),

@@ -21,6 +21,7 @@ def _cmd_run(args) -> int:
     result = run_scene(scene, args.output, frames=args.frames, progress=None if not args.quiet else False)
     print(f"frames: {result.frames}")
     print(f"mean step: {result.mean_step_ms:.3f} ms ({result.steps} steps)")
+    print(f"real-time factor: {result.real_time_factor:.2f} (simulated time / wall time of the steps and cut events)")
     print(f"nodes: {result.nodes}")
     print(f"elements: {result.elements}")
     if result.crack_events:

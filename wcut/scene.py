@@ -38,7 +38,9 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
                     position. The targets move with velocity = [vx, vy, vz] (m/s) or along
                     keyframes = [[t, dx, dy, dz], ...] (s, m: offsets from the start, linear in
                     between, held after the last)
-    [solver]        dt (s), cg_iterations (<= 10000), cg_tolerance, rotation_iterations,
+    [solver]        dt (s; default 1 / fps: one step per frame), preconditioner ("cholesky" or
+                    "jacobi"; default: the solver's), cg_tolerance and cg_iterations (the solver's
+                    defaults: a relative residual and a safety cap), rotation_iterations,
                     rotation_stiffness (bool, default true: the tangent's rotation term in the
                     system matrix, see wcut.solver; false: the thesis's R K R^T), cpu_threads
                     (1..8: threads of the element kernels on the CPU; default: by model size)
@@ -141,6 +143,8 @@ def _list_of(item):
 #: bounds that keep a typo from hanging a run or exhausting memory
 MAX_ITERATIONS = 10000
 MAX_SUBSTEPS = 10000
+#: the longest time step (s) a scene may take (its dt, or 1 / fps without one)
+MAX_STEP = 1.0
 
 # section -> key -> (checker, default); a default of None means "absent unless given"
 _SCHEMA = {
@@ -153,7 +157,8 @@ _SCHEMA = {
     "damping": {"rayleigh_mass": (_number, 0.0), "rayleigh_stiffness": (_number, 0.0)},
     "constraints": {"fixed_indices": (_list_of(_integer), []), "fixed_boxes": (_list_of(_box), [])},
     "loads": {"gravity": (_vec3, [0.0, 0.0, -9.81]), "force": (None, [])},
-    "solver": {"dt": (_number, 0.01), "cg_iterations": (_integer, 50), "cg_tolerance": (_number, 1.0e-5),
+    "solver": {"dt": (_number, None), "cg_iterations": (_integer, None), "cg_tolerance": (_number, None),
+               "preconditioner": (_string, None),
                "rotation_iterations": (_integer, 8), "rotation_stiffness": (_boolean, True),
                "cpu_threads": (_thread_count, None)},
     "simulation": {"duration": (_number, 2.0), "fps": (_number, 30.0)},
@@ -275,7 +280,8 @@ def _parse(raw: dict, path: Path) -> Scene:
             if any(a["velocity"]):
                 raise SceneError(f"attachments[{i}].keyframes: give keyframes or velocity, not both")
     solver, sim, out = sections["solver"], sections["simulation"], sections["output"]
-    for key, value in (("solver.dt", solver["dt"]), ("simulation.duration", sim["duration"]),
+    for key, value in (("solver.dt", 1.0 if solver["dt"] is None else solver["dt"]),
+                       ("simulation.duration", sim["duration"]),
                        ("simulation.fps", sim["fps"]), ("material.density", sections["material"]["density"]),
                        ("material.youngs_modulus", sections["material"]["youngs_modulus"])):
         if value <= 0:
@@ -286,11 +292,16 @@ def _parse(raw: dict, path: Path) -> Scene:
     if not -1.0 < sections["material"]["poisson_ratio"] < 0.5:
         raise SceneError(f"material.poisson_ratio: must be in (-1, 0.5), got {sections['material']['poisson_ratio']}")
     for key in ("cg_iterations", "rotation_iterations"):
-        if not 1 <= solver[key] <= MAX_ITERATIONS:
+        if solver[key] is not None and not 1 <= solver[key] <= MAX_ITERATIONS:
             raise SceneError(f"solver.{key}: must be in 1..{MAX_ITERATIONS}, got {solver[key]}")
-    if solver["cg_tolerance"] < 0:
+    if solver["cg_tolerance"] is not None and solver["cg_tolerance"] < 0:
         raise SceneError(f"solver.cg_tolerance: must be >= 0, got {solver['cg_tolerance']}")
-    if 1.0 / (sim["fps"] * solver["dt"]) > MAX_SUBSTEPS:
+    if solver["preconditioner"] not in (None, "cholesky", "jacobi"):
+        raise SceneError(f"solver.preconditioner: expected 'cholesky' or 'jacobi', got {solver['preconditioner']!r}")
+    if (solver["dt"] or 1.0 / sim["fps"]) > MAX_STEP:
+        raise SceneError(f"solver.dt: a step of {solver['dt'] or 1.0 / sim['fps']:.3g} s "
+                         f"({'solver.dt' if solver['dt'] else '1 / simulation.fps'}) is longer than {MAX_STEP} s")
+    if solver["dt"] is not None and 1.0 / (sim["fps"] * solver["dt"]) > MAX_SUBSTEPS:
         raise SceneError(f"solver.dt: {solver['dt']} s gives more than {MAX_SUBSTEPS} steps per frame at "
                          f"simulation.fps = {sim['fps']}")
     if out["stress_max"] is not None and out["stress_max"] <= 0:
@@ -594,6 +605,8 @@ class RunResult:
     output: Path | None
     cut_events: int = 0
     crack_events: int = 0  #: crack advances (:class:`wcut.fracture.CrackEvent`)
+    #: simulated time over the wall time of the steps, crack growth and cut events
+    real_time_factor: float = 0.0
 
 
 class Simulation:
@@ -608,6 +621,7 @@ class Simulation:
             topological change).
         frame: frames simulated so far.
         step_seconds: wall time spent in solver steps and crack growth (s).
+        cut_seconds: wall time spent in the blade's cut events (cut and rebuild, s).
         cut_events: frames in which the blade changed the mesh.
         changes: the ``(mesh, change)`` of every topological change of the last frame, in order.
     """
@@ -623,7 +637,7 @@ class Simulation:
         self._settings = scene.solver
         self.solver = self._solver()
         fps = scene.simulation["fps"]
-        self.substeps = max(1, math.ceil(1.0 / (fps * self._settings["dt"]) - 1e-9))
+        self.substeps = max(1, math.ceil(1.0 / (fps * (self._settings["dt"] or 1.0 / fps)) - 1e-9))
         self.dt = 1.0 / (fps * self.substeps)
         self.state, self._next = self.model.state(), self.model.state()
         for each in (self.state, self._next):  # constant loads: the solver reads them and never clears them
@@ -632,14 +646,15 @@ class Simulation:
         self.fracture = _fracture(scene.fracture, self.model.mesh) if scene.fracture else None
         self._targets0 = self.control.attachment_target.numpy().astype(np.float64)
         self._moving = self._motion.moving
-        self.frame, self.step_seconds, self.cut_events = 0, 0.0, 0
+        self.frame, self.step_seconds, self.cut_seconds, self.cut_events = 0, 0.0, 0.0, 0
         self.changes: list = []
 
     def _solver(self):
         from .solver import SolverCorotational
 
         s = self._settings
-        return SolverCorotational(self.model, cg_iterations=s["cg_iterations"], cg_tolerance=s["cg_tolerance"],
+        given = {key: s[key] for key in ("cg_iterations", "cg_tolerance") if s[key] is not None}
+        return SolverCorotational(self.model, **given, preconditioner=s["preconditioner"],
                                   rotation_iterations=s["rotation_iterations"],
                                   rotation_stiffness=s["rotation_stiffness"], cpu_threads=s["cpu_threads"])
 
@@ -651,7 +666,7 @@ class Simulation:
         self._next, self.control = self.model.state(), self.model.control()
         self._next.particle_f.assign(self.state.particle_f)
         self.control.attachment_target.assign(targets)
-        self.solver = self._solver()
+        self.solver = self.solver.rebuilt(self.model, change)
 
     def advance(self) -> bool:
         """Simulate one frame; True when the mesh changed (a cut or a crack)."""
@@ -672,12 +687,14 @@ class Simulation:
                 self.rebuild(self.fracture.mesh, change)
         wp.synchronize_device(self.model.device)
         self.step_seconds += time.perf_counter() - start
-        self.solver.check_finite()
+        self.solver.check()
         self.frame += 1
+        start = time.perf_counter()
         change = self.blade.cut(self.frame, self.state) if self.blade else None
         if change is not None:
             self.cut_events += 1
             self.rebuild(self.blade.mesh(), change)
+        self.cut_seconds += time.perf_counter() - start
         return changed or change is not None
 
 
@@ -732,8 +749,10 @@ def run_scene(scene: Scene, output: str | os.PathLike | None = None, *, frames: 
         for frame, frame_points in enumerate(points):
             colors = stress_colors(stresses[frame], vmin=0.0, vmax=max(stress_max, 1e-30)) if colored else None
             writer.write_frame(scene.name, frame, frame_points, triangles[frame], colors)
+    wall = sim.step_seconds + sim.cut_seconds
     return RunResult(frames=frames, steps=frames * sim.substeps,
                      mean_step_ms=1e3 * sim.step_seconds / (frames * sim.substeps),
+                     real_time_factor=frames / scene.simulation["fps"] / wall if wall > 0 else float("inf"),
                      nodes=sim.model.particle_count, elements=sim.model.tri_count or sim.model.tet_count,
                      output=output, cut_events=sim.cut_events,
                      crack_events=len(sim.fracture.events) if sim.fracture else 0)

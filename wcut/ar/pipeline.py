@@ -221,7 +221,7 @@ class ArTracker:
         for _ in range(self.params.solver["substeps"]):
             self.solver.step(self.state, self._next, self.control, self.dt)
             self.state, self._next = self._next, self.state
-        self.solver.check_finite()
+        self.solver.check()
         self._check_bounded()
         if self.detector is None:
             return 0.0

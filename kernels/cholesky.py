@@ -1,0 +1,118 @@
+"""A rotated sparse Cholesky factor applied as a preconditioner (``wcut.preconditioner``).
+
+The factor is ``L L^T = Q^T A0 Q`` of the rest system matrix ``A0`` (free nodes only, in the
+fill-reducing order ``Q``), stored by 3x3 blocks, row-wise: block row ``I`` holds its strictly
+lower blocks ``L_IJ`` (``J < I``, columns ``block_column[row_start[I]:row_start[I+1]]``) and
+the inverse of its lower-triangular diagonal block, ``diagonal_inverse[I] = L_II^-1``.
+
+Applied to a residual ``r`` (Courtecuisse et al. 2010, 2014): ``z_i = R_i [(L L^T)^-1 t]_I``
+with ``t_I = R_i^T r_i``, where ``I = factor_position[i]`` and ``R_i`` is the rotation of node
+``i`` (:func:`node_rotations_tet`, :func:`node_rotations_gauss`), so the factor of the rest shape serves an
+object that has turned. A node without a position (-1: added or changed by a topological
+change since the factorization) gets the Jacobi preconditioner ``z_i = D_i^-1 r_i`` until the
+factor is refreshed; a fixed node gets 0. Both parts are symmetric positive definite, so the
+sum is a valid preconditioner for the conjugate gradient.
+
+:func:`block_solve` runs on one thread: the triangular solves are sequential (a row needs the
+rows before it). On the CPU, where Warp runs threads one after another anyway, that costs
+nothing; on CUDA the kernel is correct but serial.
+"""
+
+import warp as wp
+
+from .ranges import thread_range
+
+
+@wp.kernel
+def node_rotations_tet(
+    owner: wp.array(dtype=wp.int32),
+    tet_rotation: wp.array(dtype=wp.quat),
+    node_rotation: wp.array(dtype=wp.quat),
+):
+    """``R_i``: the rotation of the element that owns node i (its largest incident element)."""
+    i = wp.tid()
+    o = owner[i]
+    if o >= 0:
+        node_rotation[i] = tet_rotation[o]
+
+
+@wp.kernel
+def node_rotations_gauss(
+    owner: wp.array(dtype=wp.int32),
+    tet_rotation: wp.array2d(dtype=wp.quat),
+    node_rotation: wp.array(dtype=wp.quat),
+):
+    """``R_i`` of quadratic elements: the rotation at the Gauss point ``owner % 4`` of element
+    ``owner / 4`` (the point nearest the node)."""
+    i = wp.tid()
+    o = owner[i]
+    if o >= 0:
+        node_rotation[i] = tet_rotation[o // 4, o % 4]
+
+
+@wp.kernel
+def rotate_into_factor(
+    chunk: int,
+    factor_position: wp.array(dtype=wp.int32),
+    node_rotation: wp.array(dtype=wp.quat),
+    r: wp.array(dtype=wp.vec3),
+    t: wp.array(dtype=wp.vec3),
+):
+    """``t[factor_position[i]] = R_i^T r_i`` for the nodes in the factor (``t`` is zero before)."""
+    lo, hi = thread_range(wp.tid(), chunk, r.shape[0])
+    for i in range(lo, hi):
+        s = factor_position[i]
+        if s >= 0:
+            t[s] = wp.quat_rotate_inv(node_rotation[i], r[i])
+
+
+@wp.kernel
+def block_solve(
+    row_start: wp.array(dtype=wp.int32),
+    block_column: wp.array(dtype=wp.int32),
+    blocks: wp.array(dtype=wp.mat33),
+    diagonal_inverse: wp.array(dtype=wp.mat33),
+    t: wp.array(dtype=wp.vec3),
+):
+    """One thread: ``t = (L L^T)^-1 t`` in place, forward then backward substitution."""
+    n = t.shape[0]
+    for row in range(n):  # L y = t, row by row
+        acc = t[row]
+        for b in range(row_start[row], row_start[row + 1]):
+            acc = acc - blocks[b] * t[block_column[b]]
+        t[row] = diagonal_inverse[row] * acc
+    for k in range(n):  # L^T x = y, the rows last to first, each scattered to the rows it uses
+        row = n - 1 - k
+        x = wp.transpose(diagonal_inverse[row]) * t[row]
+        t[row] = x
+        for b in range(row_start[row], row_start[row + 1]):
+            c = block_column[b]
+            t[c] = t[c] - wp.transpose(blocks[b]) * x
+
+
+@wp.kernel
+def rotate_from_factor(
+    chunk: int,
+    counter: wp.array(dtype=wp.int32),
+    factor_position: wp.array(dtype=wp.int32),
+    node_rotation: wp.array(dtype=wp.quat),
+    inv_diagonal: wp.array(dtype=wp.vec3),
+    r: wp.array(dtype=wp.vec3),
+    t: wp.array(dtype=wp.vec3),
+    z: wp.array(dtype=wp.vec3),
+    rz: wp.array(dtype=float),
+):
+    """``z_i = R_i t[factor_position[i]]`` (``D_i^-1 r_i`` for a node outside the factor, 0 for a
+    fixed one) and ``rz[counter] = r.z``."""
+    lo, hi = thread_range(wp.tid(), chunk, r.shape[0])
+    rz_sum = float(0.0)
+    for i in range(lo, hi):
+        s = factor_position[i]
+        ri = r[i]
+        zi = wp.cw_mul(inv_diagonal[i], ri)
+        if s >= 0:
+            zi = wp.quat_rotate(node_rotation[i], t[s])
+        z[i] = zi
+        rz_sum += wp.dot(ri, zi)
+    wp.atomic_add(rz, counter[0], rz_sum)
+
