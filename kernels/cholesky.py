@@ -13,9 +13,12 @@ change since the factorization) gets the Jacobi preconditioner ``z_i = D_i^-1 r_
 factor is refreshed; a fixed node gets 0. Both parts are symmetric positive definite, so the
 sum is a valid preconditioner for the conjugate gradient.
 
-:func:`block_solve` runs on one thread: the triangular solves are sequential (a row needs the
-rows before it). On the CPU, where Warp runs threads one after another anyway, that costs
-nothing; on CUDA the kernel is correct but serial.
+The triangular solves (:func:`block_forward`, :func:`block_backward`) run on one thread each:
+a row needs the rows before it. On the CPU, where Warp runs threads one after another anyway,
+that costs nothing; on CUDA the kernels are correct but serial. The rows of two disjoint
+subtrees of the factor's elimination tree do not use each other's, so on the CPU the two run
+on two threads at once (``wcut.preconditioner``), the rows above them after (forward) or
+before (backward).
 """
 
 import warp as wp
@@ -67,22 +70,39 @@ def rotate_into_factor(
 
 
 @wp.kernel
-def block_solve(
+def block_forward(
     row_start: wp.array(dtype=wp.int32),
     block_column: wp.array(dtype=wp.int32),
     blocks: wp.array(dtype=wp.mat33),
     diagonal_inverse: wp.array(dtype=wp.mat33),
+    lo: int,
+    hi: int,
     t: wp.array(dtype=wp.vec3),
 ):
-    """One thread: ``t = (L L^T)^-1 t`` in place, forward then backward substitution."""
-    n = t.shape[0]
-    for row in range(n):  # L y = t, row by row
+    """One thread: forward substitution ``L y = t`` in place over the block rows ``lo..hi-1``
+    (the rows they use before ``lo`` already solved)."""
+    for row in range(lo, hi):
         acc = t[row]
         for b in range(row_start[row], row_start[row + 1]):
             acc = acc - blocks[b] * t[block_column[b]]
         t[row] = diagonal_inverse[row] * acc
-    for k in range(n):  # L^T x = y, the rows last to first, each scattered to the rows it uses
-        row = n - 1 - k
+
+
+@wp.kernel
+def block_backward(
+    row_start: wp.array(dtype=wp.int32),
+    block_column: wp.array(dtype=wp.int32),
+    blocks: wp.array(dtype=wp.mat33),
+    diagonal_inverse: wp.array(dtype=wp.mat33),
+    lo: int,
+    hi: int,
+    t: wp.array(dtype=wp.vec3),
+):
+    """One thread: backward substitution ``L^T x = y`` in place over the block rows
+    ``hi-1..lo``, last to first, each row scattered to the rows it uses (the rows after ``hi``
+    already done)."""
+    for k in range(hi - lo):
+        row = hi - 1 - k
         x = wp.transpose(diagonal_inverse[row]) * t[row]
         t[row] = x
         for b in range(row_start[row], row_start[row + 1]):

@@ -168,3 +168,30 @@ def test_the_beam_converges_in_few_iterations_at_any_stiffness():
         if E == 1e7:
             assert jacobi.last_cg_iterations > 5 * max(iterations)
     wp.synchronize()
+
+
+def test_two_subtrees_solved_on_two_threads_equal_one_thread(monkeypatch):
+    """The factor's rows split into two subtrees that use none of each other's rows, solved on
+    two threads at once: the same steps bit for bit as one thread's solves."""
+    mesh = wcut.beam(4, 4, 12, size=(0.04, 0.04, 0.12))
+    fixed = mesh.vertices_in_box((-1, -1, -1), (1, 1, 1e-9))
+    model = Model(mesh, youngs_modulus=1e6, gravity=(0.0, -9.81, 0.0), fixed=fixed)
+    ends = {}
+    for limit in (10 ** 9, 1):
+        monkeypatch.setattr(pc, "CONCURRENT_SOLVE_BLOCKS", limit)
+        solver = SolverCorotational(model, cpu_threads=2)
+        state = model.state()
+        scratch = model.state()
+        for _ in range(5):
+            solver.step(state, scratch, None, 1 / 60)
+            state, scratch = scratch, state
+        assert solver._concurrent_solve == (limit == 1)
+        ends[limit] = state.particle_q.numpy()
+    factor = solver.preconditioner._factor
+    a, b = factor.subtrees
+    assert 0 < a < b <= len(factor.order)
+    rows = np.repeat(np.arange(len(factor.order)), np.diff(factor.row_start))
+    in_b = (rows >= a) & (rows < b)
+    assert (factor.block_column[in_b] >= a).all()  # the second subtree never reads the first's rows
+    assert (factor.block_column[rows < a] < a).all()
+    assert np.array_equal(ends[1], ends[10 ** 9])

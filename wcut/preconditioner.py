@@ -176,6 +176,10 @@ class BlockFactor:
     block_column: np.ndarray
     blocks: np.ndarray
     diagonal_inverse: np.ndarray
+    #: ``(a, b)``: block rows ``0..a-1`` and ``a..b-1`` are two disjoint subtrees of the
+    #: elimination tree (neither uses the other's rows), ``b..`` the rows above them; None when
+    #: the tree does not branch
+    subtrees: tuple[int, int] | None = None
 
     @property
     def block_count(self) -> int:
@@ -213,9 +217,37 @@ def factor(A: sp.bsr_matrix) -> BlockFactor:
     lower = Lb.indices < row_of_block
     counts = np.bincount(row_of_block[lower], minlength=n)
     row_start = np.concatenate([[0], np.cumsum(counts)])
-    return BlockFactor(order=order[node_perm], row_start=row_start.astype(np.int32),
-                       block_column=Lb.indices[lower].astype(np.int32), blocks=Lb.data[lower],
-                       diagonal_inverse=np.linalg.inv(diag_blocks))
+    block_column = Lb.indices[lower].astype(np.int32)
+    return BlockFactor(order=order[node_perm], row_start=row_start.astype(np.int32), block_column=block_column,
+                       blocks=Lb.data[lower], diagonal_inverse=np.linalg.inv(diag_blocks),
+                       subtrees=_subtree_split(row_start, block_column))
+
+
+def _subtree_split(row_start: np.ndarray, block_column: np.ndarray) -> tuple[int, int] | None:
+    """``(a, b)`` of :class:`BlockFactor`: below the chain of rows at the top of the elimination
+    tree (each the only child of the next), the subtrees of the first row with several
+    children, in two groups of about equal work (blocks). The rows are in post-order (SuperLU
+    post-orders the tree), so each subtree is a range of rows ending at its root; None when the
+    tree does not branch or the ranges are not contiguous."""
+    n = len(row_start) - 1
+    rows = np.repeat(np.arange(n), np.diff(row_start))
+    parent = np.full(n, n, dtype=np.int64)  # column J's parent: the first row below with a block in it
+    np.minimum.at(parent, block_column, rows)
+    size, work = np.ones(n + 1, dtype=np.int64), np.append(np.diff(row_start) + 1, 0)
+    for j in range(n):  # children before parents in post-order
+        size[parent[j]] += size[j]
+        work[parent[j]] += work[j]
+    node, kids = n, np.flatnonzero(parent == n)
+    while len(kids) == 1:
+        node, kids = kids[0], np.flatnonzero(parent == kids[0])
+    if len(kids) < 2:
+        return None
+    starts, ends = kids - size[kids] + 1, kids + 1
+    if starts[0] != 0 or np.any(starts[1:] != ends[:-1]) or ends[-1] != min(node, n):
+        return None
+    cumulative = np.cumsum(work[kids])
+    split = int(np.argmin(np.maximum(cumulative[:-1], cumulative[-1] - cumulative[:-1])))
+    return int(ends[split]), int(ends[-1])
 
 
 # -- node rotations ----------------------------------------------------------------------------
@@ -242,6 +274,11 @@ def _owners(model) -> np.ndarray:
 
 # -- the preconditioner ------------------------------------------------------------------------
 
+
+#: blocks of a factor from which its two subtrees are solved on two threads: a hand-over costs
+#: about 0.1 ms, the solves about 18 ns per block (forward and backward), of which the two
+#: subtrees of SOFA's 10x10x40 beam hold 74% (196k of 266k)
+CONCURRENT_SOLVE_BLOCKS = 50000
 
 #: the refresh's assembly and factorization time per block of the factor (s), measured 4-5 us
 #: on the 2-core development machine (SOFA's 10x10x40 beam: 262k blocks in 1.1-1.3 s): a refresh
@@ -375,17 +412,36 @@ class RotatedCholesky:
         wp.launch(kernel, m.particle_count, device=m.device, inputs=[self.owner, state.tet_rotation],
                   outputs=[self.node_rotation])
 
-    def record_apply(self, chunk: int, counter, inv_diagonal, r, z, rz) -> list:
-        """The recorded launches of ``z = P^-1 r`` and ``rz[counter] = r.z``."""
+    def concurrent(self, team) -> bool:
+        """Whether :meth:`record_apply` with ``team`` solves two subtrees on two threads (its
+        launches then cannot be captured in a graph)."""
+        return (team is not None and team.size >= 2 and self._factor.subtrees is not None
+                and self._factor.block_count >= CONCURRENT_SOLVE_BLOCKS and self.model.device.is_cpu)
+
+    def record_apply(self, chunk: int, counter, inv_diagonal, r, z, rz, team=None) -> list:
+        """The recorded launches of ``z = P^-1 r`` and ``rz[counter] = r.z``; the triangular
+        solves of two subtrees on two threads of ``team`` when :meth:`concurrent`."""
         m, d = self.model, self.model.device
         row_start, block_column, blocks, diagonal_inverse, t = self._arrays
         node_threads = (m.particle_count + chunk - 1) // chunk
+
+        def solve(kernel, lo, hi):
+            return wp.launch(kernel, 1, device=d, record_cmd=True,
+                             inputs=[row_start, block_column, blocks, diagonal_inverse, lo, hi], outputs=[t])
+
+        n = len(self._factor.order)
+        if self.concurrent(team):
+            a, b = self._factor.subtrees
+            solves = [_Concurrent(team, [solve(cholesky.block_forward, 0, a), solve(cholesky.block_forward, a, b)]),
+                      solve(cholesky.block_forward, b, n), solve(cholesky.block_backward, b, n),
+                      _Concurrent(team, [solve(cholesky.block_backward, 0, a), solve(cholesky.block_backward, a, b)])]
+        else:
+            solves = [solve(cholesky.block_forward, 0, n), solve(cholesky.block_backward, 0, n)]
         return [
             _MemsetLaunch(t),
             wp.launch(cholesky.rotate_into_factor, node_threads, device=d, record_cmd=True,
                       inputs=[chunk, self.factor_position, self.node_rotation, r], outputs=[t]),
-            wp.launch(cholesky.block_solve, 1, device=d, record_cmd=True,
-                      inputs=[row_start, block_column, blocks, diagonal_inverse], outputs=[t]),
+            *solves,
             wp.launch(cholesky.rotate_from_factor, node_threads, device=d, record_cmd=True,
                       inputs=[chunk, counter, self.factor_position, self.node_rotation, inv_diagonal,
                               r, t], outputs=[z, rz]),
@@ -450,6 +506,21 @@ def _carried_rotations(rotations: np.ndarray, change) -> np.ndarray:
         sources, _ = change.vertex_rows(touched)
         out[touched] = rotations[sources[:, 0]]
     return out
+
+
+class _Concurrent:
+    """Recorded launches run at once on the threads of a ``wcut.split_launch.ThreadTeam`` (one
+    after another inside a graph capture)."""
+
+    def __init__(self, team, commands: list):
+        self.team, self.commands = team, commands
+
+    def launch(self):
+        if self.commands[0].device.is_capturing:
+            for command in self.commands:
+                command.launch()
+        else:
+            self.team.run([command.launch for command in self.commands])
 
 
 class _MemsetLaunch:

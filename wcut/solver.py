@@ -234,6 +234,7 @@ class SolverCorotational:
         if preconditioner == "cholesky":
             self.preconditioner = _carried if _carried is not None else RotatedCholesky(model)
         self._recorded_for: tuple | None = None
+        self._concurrent_solve = False  # the factor's solves run on two threads: no graph
         # recorded launches, or SplitLaunch objects: anything with launch()
         self._cg_start: list = []  # before the loop
         self._cg_body: list = []  # one iteration
@@ -331,7 +332,9 @@ class SolverCorotational:
                            inputs=[chunk, jacobi, self.rhs, self.inv_diagonal], outputs=[self.dv, r, z, p, q, rd]),
                  wp.launch(cg.cg_start, 1, device=d, record_cmd=True,
                            inputs=[self.cg_tolerance ** 2, self._cg_iterations, rd], outputs=[norms, self._running])]
-        body = [] if jacobi else self.preconditioner.record_apply(chunk, counter, self.inv_diagonal, r, z, rz)
+        team = self._team if self.cpu_threads > 1 else None
+        self._concurrent_solve = not jacobi and self.preconditioner.concurrent(team)
+        body = [] if jacobi else self.preconditioner.record_apply(chunk, counter, self.inv_diagonal, r, z, rz, team)
         body.append(wp.launch(cg.cg_direction, node_threads, device=d, record_cmd=True,
                               inputs=[chunk, counter, z, rz], outputs=[p]))
         if m.tet_count:
@@ -430,7 +433,7 @@ class SolverCorotational:
                 self._graphs.clear()  # they hold the launches of the factor before
         if self._recorded_for != self._record_key(dt):
             self._record_cg(dt)
-        if not self.graph_capture or self.split_product or m.device.is_capturing:
+        if not self.graph_capture or self.split_product or self._concurrent_solve or m.device.is_capturing:
             self._launch_step(state_in, state_out, control, dt)  # (inside the user's capture: into it)
             return
         captured = self._launch_step
