@@ -315,8 +315,8 @@ class RotatedCholesky:
         self._arrays: tuple | None = None  # device arrays of the factor in use
         self._pending: _Refresh | None = None
         self._outdated = False  # the factor in use is of the model before a change
-        self._generation = 0
-        self._steps = 0  # calls of update(): refreshes are taken at a step fixed when they start  # bumped whenever the arrays the recorded launches use change
+        self._generation = 0  # bumped whenever the arrays the recorded launches use change
+        self._steps = 0  # calls of update(): refreshes are taken at a step fixed when they start
 
     @property
     def generation(self) -> int:
