@@ -195,3 +195,20 @@ def test_two_subtrees_solved_on_two_threads_equal_one_thread(monkeypatch):
     assert (factor.block_column[in_b] >= a).all()  # the second subtree never reads the first's rows
     assert (factor.block_column[rows < a] < a).all()
     assert np.array_equal(ends[1], ends[10 ** 9])
+
+
+def test_a_refresh_is_taken_at_once_after_a_step_the_old_factor_served_badly(monkeypatch):
+    """A step that needed more than STRUGGLING_ITERATIONS (here: any) takes the refresh at the
+    next step, before the step it was due at."""
+    from wcut import solver as solver_module
+
+    monkeypatch.setattr(solver_module, "STRUGGLING_ITERATIONS", 0)
+    monkeypatch.setattr(pc, "REFRESH_SECONDS_PER_BLOCK", 1.0)  # due a long way off
+    model, state, solver, _ = _cut_beam(True)
+    P = solver.preconditioner
+    assert P._pending.due_step > P._steps + 2  # due later than the second step from now
+    scratch = model.state()
+    for _ in range(2):
+        solver.step(state, scratch, None, DT)
+        state, scratch = scratch, state
+    assert not P.refreshing and P.fallback_count == 0

@@ -280,6 +280,12 @@ def _owners(model) -> np.ndarray:
 #: subtrees of SOFA's 10x10x40 beam hold 74% (196k of 266k)
 CONCURRENT_SOLVE_BLOCKS = 50000
 
+#: CG iterations of a step beyond which a refresh in flight is taken at the next step (waiting
+#: for it) instead of at its due step: after a complete cut of a 20k-element beam the factor of
+#: before needed about 160 iterations per step (3 before the cut), 0.6 s per step, for the 45
+#: steps its refresh was due after
+STRUGGLING_ITERATIONS = 20
+
 #: the refresh's assembly and factorization time per block of the factor (s), measured 4-5 us
 #: on the 2-core development machine (SOFA's 10x10x40 beam: 262k blocks in 1.1-1.3 s): a refresh
 #: started after a change is taken that many seconds of simulated time later
@@ -296,7 +302,9 @@ class RotatedCholesky:
             thread, the previous one serving meanwhile, and take them at the step by which a
             simulation running in real time would have them (:data:`REFRESH_SECONDS_PER_BLOCK`;
             the step is fixed when the refresh starts, so results do not depend on the
-            machine's speed); False computes them at once and takes them at the next step.
+            machine's speed), or at the step after one the factor of before served badly
+            (:data:`STRUGGLING_ITERATIONS`); False computes them at once and takes them at the
+            next step.
 
     The first factor is computed by :meth:`update` at the first step (its dt is needed).
     """
@@ -334,14 +342,16 @@ class RotatedCholesky:
         """Whether a new factor is being computed."""
         return self._pending is not None
 
-    def update(self, dt: float) -> None:
-        """Before a step of ``dt``: take a finished refresh; factor now if there is no factor
-        yet; start a refresh if the factor is of another dt or damping, or of a model before a
-        change."""
+    def update(self, dt: float, struggling: bool = False) -> None:
+        """Before a step of ``dt``: take a refresh that is due (waiting for it), or at once when
+        the last step was ``struggling`` (needed more than :data:`STRUGGLING_ITERATIONS`); factor
+        now if there is no factor yet; start a refresh if the factor is of another dt or
+        damping, or of a model before a change."""
         m = self.model
         key = (dt, m.rayleigh_mass, m.rayleigh_stiffness)
         self._steps += 1
-        if self._pending is not None and (self._steps >= self._pending.due_step or self._factor is None):
+        if self._pending is not None and (self._steps >= self._pending.due_step or struggling
+                                          or self._factor is None):
             pending, self._pending = self._pending, None
             self._adopt(pending.result(), pending.positions, pending.key)
             self._outdated = pending.stale

@@ -56,7 +56,7 @@ import warp as wp
 from .errors import SimulationError
 from .kernels import attachments, bending, cg, implicit_euler, tet_p1, tet_p2, tri_p2
 from .model import Control, Model, State
-from .preconditioner import RotatedCholesky
+from .preconditioner import STRUGGLING_ITERATIONS, RotatedCholesky
 from .split_launch import MAX_THREADS, SplitLaunch, ThreadTeam, available_cores
 
 #: the conjugate gradient's preconditioners: the rotated rest factor (``wcut.preconditioner``,
@@ -428,7 +428,9 @@ class SolverCorotational:
         self._last_dt = dt
         if self.preconditioner is not None:
             generation = self.preconditioner.generation
-            self.preconditioner.update(dt)
+            # (a solver made by rebuilt() has run no iterations yet: its count is 0)
+            struggling = self.preconditioner.refreshing and self.last_cg_iterations > STRUGGLING_ITERATIONS
+            self.preconditioner.update(dt, struggling)
             if self.preconditioner.generation != generation:
                 self._graphs.clear()  # they hold the launches of the factor before
         if self._recorded_for != self._record_key(dt):
