@@ -150,14 +150,16 @@ def rest_system_matrix(data: RestData, dt: float, rayleigh_mass: float, rayleigh
 # -- the factor --------------------------------------------------------------------------------
 
 
-def _node_order(A: sp.bsr_matrix) -> np.ndarray:
-    """A fill-reducing order of the block rows of A: METIS's nested dissection of its graph."""
+def nested_dissection(graph) -> np.ndarray:
+    """A fill-reducing order (a permutation of ``0..n-1``) of the nodes of ``graph``, an (n, n)
+    sparse matrix whose nonzeros are its edges (the diagonal is ignored): METIS's nested
+    dissection, through pymetis."""
     import pymetis
 
-    n = A.shape[0] // 3
-    graph = sp.csr_matrix((np.ones(len(A.indices)), A.indices.copy(), A.indptr.copy()), shape=(n, n))
+    graph = sp.csr_matrix(graph, copy=True)
     graph.setdiag(0)
     graph.eliminate_zeros()
+    n = graph.shape[0]
     if n < 3 or graph.nnz == 0:
         return np.arange(n)
     perm, _ = pymetis.nested_dissection(adjacency=pymetis.CSRAdjacency(graph.indptr, graph.indices))
@@ -191,7 +193,7 @@ def factor(A: sp.bsr_matrix) -> BlockFactor:
 
     Raises :class:`SimulationError` when ``A`` is not positive definite (a pivot <= 0)."""
     n = A.shape[0] // 3
-    order = _node_order(A)
+    order = nested_dissection(sp.csr_matrix((np.ones(len(A.indices)), A.indices, A.indptr), shape=(n, n)))
     dofs = (3 * order[:, None] + np.arange(3)).ravel()
     A_ordered = A.tocsr()[dofs][:, dofs].tocsc()
     lu = spla.splu(A_ordered, permc_spec="NATURAL", diag_pivot_thresh=0.0,
@@ -357,7 +359,7 @@ class RotatedCholesky:
             self._outdated = pending.stale
         if self._factor is None:
             data = RestData.of(m)
-            self._adopt(_compute(data, key), _identity_positions(data), key)
+            self._adopt(_compute(data, key), _free_index(data), key)
             self._outdated = False
         if self._pending is None and (self._outdated or self._factored_for != key):
             self._start_refresh(key)
@@ -372,7 +374,7 @@ class RotatedCholesky:
         delay = 1
         if self.background and self._factor is not None:  # the steps a real-time run takes meanwhile
             delay = max(1, int(np.ceil(REFRESH_SECONDS_PER_BLOCK * self._factor.block_count / key[0])))
-        self._pending = _Refresh(data, key, _identity_positions(data), self.background, self._steps + delay)
+        self._pending = _Refresh(data, key, _free_index(data), self.background, self._steps + delay)
 
     def _adopt(self, factor: BlockFactor, free_index: np.ndarray, key: tuple) -> None:
         """Use ``factor``; ``free_index`` (N,) maps the nodes to the factored model's free nodes
@@ -548,7 +550,7 @@ def _compute(data: RestData, key: tuple) -> BlockFactor:
     return factor(A)
 
 
-def _identity_positions(data: RestData) -> np.ndarray:
+def _free_index(data: RestData) -> np.ndarray:
     """The index of each node among the free nodes of ``data``'s model (-1: fixed)."""
     positions = np.full(data.node_count, -1, dtype=np.int64)
     free = np.flatnonzero(~data.fixed)

@@ -112,16 +112,11 @@ def _per_element(value, name, n_elements):
 
 def _symmetric_factor(K: sp.csc_matrix):
     """SuperLU's factor of a symmetric positive definite matrix of 3-vectors, on a nested
-    dissection order of its nodes (METIS, through pymetis; SuperLU's own orders fill in far more
-    on 3-D meshes: minutes for 66k unknowns): ``solve(b)`` solves ``K x = b``."""
-    import pymetis
+    dissection order of its nodes (SuperLU's own orders fill in far more on 3-D meshes: minutes
+    for 66k unknowns): ``solve(b)`` solves ``K x = b``."""
+    from .preconditioner import nested_dissection
 
-    n = K.shape[0] // 3
-    graph = sp.csr_matrix(K[0::3, 0::3] != 0)
-    graph.setdiag(False)
-    graph.eliminate_zeros()
-    order = np.asarray(pymetis.nested_dissection(adjacency=pymetis.CSRAdjacency(graph.indptr, graph.indices))[0]) \
-        if n > 2 and graph.nnz else np.arange(n)
+    order = nested_dissection(K[0::3, 0::3] != 0)
     dofs = (3 * order[:, None] + np.arange(3)).ravel()
     lu = spla.splu(K[dofs][:, dofs].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
                    options=dict(SymmetricMode=True))
