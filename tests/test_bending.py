@@ -11,7 +11,7 @@ from conftest import axis_angle_rotation
 
 from wcut import shell
 from wcut.kernels import attachments, bending
-from wcut.mesh import ShellMesh, rectangle_sheet
+from wcut.mesh import rectangle_sheet
 from wcut.model import Model
 from wcut.solver import SolverCorotational
 

@@ -207,7 +207,12 @@ def test_cut_command_writes_mesh_and_report(tmp_path):
                      "--epsilon", "0.1", "--report", str(report)]) == 0
         data = json.loads(report.read_text())
         assert set(data) >= {"nodes_before", "nodes_after", "elements_before", "elements_after", "cut_elements",
-                             "volume_before", "volume_after", "min_dihedral_deg", "components"}
+                             "volume_before", "volume_after", "min_dihedral_deg", "components",
+                             "min_dihedral_deg_before", "elements_below_1deg", "elements_below_5deg",
+                             "min_volume_to_median"}
+        assert data["min_dihedral_deg_before"] == pytest.approx(54.7356, abs=1e-4)  # arccos(1/sqrt(3))
+        assert data["elements_below_1deg"] <= data["elements_below_5deg"] <= data["elements_after"]
+        assert 0 < data["min_volume_to_median"] <= 1
         cut = TetMesh.load(out)
         assert (cut.vertex_count, cut.tet_count) == (data["nodes_after"], data["elements_after"])
         if method in ("paulus", "bielser"):
@@ -258,3 +263,38 @@ def test_cut_command_bad_input_exits_2(tmp_path, capsys):
         err = capsys.readouterr().err
         assert message in err and err.count("\n") == 1
         assert not out.exists()
+
+
+def test_cut_reads_a_mesh_with_unused_vertices_and_says_so_in_one_line(tmp_path, capsys):
+    from wcut.mesh import beam
+
+    mesh = beam(4, 2, 2, size=(0.2, 0.1, 0.1))
+    source = tmp_path / "raptor.vtu"
+    meshio.write(source, meshio.Mesh(np.vstack([mesh.vertices, [[9.0, 9.0, 9.0]]]), [("tetra", mesh.tets)]))
+    out = tmp_path / "cut.vtu"
+    assert main(["cut", str(source), "-o", str(out), "--plane", "0.101,0.05,0.05,1,0.1,0"]) == 0
+    err = capsys.readouterr().err
+    notes = [line for line in err.splitlines() if line.startswith("wcut: note:")]
+    assert notes == [f"wcut: note: raptor.vtu: 1 vertices no cell uses are dropped (file indices {mesh.vertex_count})"]
+    assert out.exists()
+
+
+def test_a_plane_cut_that_does_not_separate_exits_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    """Without the cutter's separation of what the remeshing left joined (a plane through a
+    beam of poor elements where splits are refused), ``wcut cut`` says so and writes nothing."""
+    from wcut.cut import Cutter
+    from wcut.mesh import beam, perturbed
+
+    source = tmp_path / "poor.vtu"
+    perturbed(beam(5, 4, 4, size=(0.05, 0.04, 0.04)), 1.0, seed=0).save(source)
+    out, report = tmp_path / "cut.vtu", tmp_path / "r.json"
+    plane = "0.022739233746429083,0.015395734275277406,0.010819470478723893,0.16021416297716448,-0.818128926665578,0.5522648652001644"
+    argv = ["cut", str(source), "-o", str(out), f"--plane={plane}", "--epsilon", "0", "--report", str(report)]
+    assert main(argv) == 0 and out.exists()
+    out.unlink()
+    report.unlink()
+    monkeypatch.setattr(Cutter, "_separate", lambda self, plane, stats: None)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "the cut did not separate poor.vtu" in err and "straddle" in err and err.count("\n") == 1
+    assert not out.exists() and not report.exists()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -11,7 +13,8 @@ from conftest import load_tool
 from wcut.cut import METHODS, CutError, Cutter, Plane, Polygon, SweptBlade, TriangleSurface
 from wcut.cut.cutter import CRUMB_ELEMENTS, CRUMB_QUALITY, CRUMB_VOLUME, CURVED_HOLD, REGULAR_QUALITY
 from wcut.cut.surface import strip
-from wcut.mesh import beam
+from wcut.cut.separation import plane_separation
+from wcut.mesh import TetMesh, beam, perturbed
 from wcut.topology import TetTopology, check_topology, connected_components, tet_qualities
 
 REMESHING = ("paulus", "bielser", "snap")
@@ -37,6 +40,14 @@ def assert_separated(mesh, plane: Plane) -> None:
     labels = connected_components(mesh)
     side = _sides(mesh, plane)
     assert not set(labels[side > 0]) & set(labels[side < 0])
+
+
+def assert_separates(topo, plane: Plane, cutter) -> None:
+    """No piece (elements sharing a vertex move together) holds elements on both sides."""
+    after = topo.to_mesh()
+    separation = plane_separation(after.vertices, after.tets, plane, cutter.tolerance,
+                                  mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
+    assert separation.separated, separation.describe()
 
 
 @pytest.fixture(scope="module")
@@ -385,13 +396,89 @@ def planes(draw):
 
 @settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(plane=planes(), method=st.sampled_from(REMESHING), epsilon=st.sampled_from([0.0, 0.1, 0.3]))
-def test_random_plane_cuts_keep_the_mesh_valid(plane, method, epsilon):
+def test_random_plane_cuts_keep_the_mesh_valid_and_separate(plane, method, epsilon):
     topo = TetTopology(MESH)
-    result = Cutter(topo, method=method, epsilon=epsilon).cut(plane)
+    cutter = Cutter(topo, method=method, epsilon=epsilon)
+    cutter.cut(plane)
     check_topology(topo, VOLUME)
+    assert_separates(topo, plane, cutter)
+
+
+# A beam of poor elements (worst dihedral angle 0.6 degrees, as meshes made by others have) and
+# planes through it: random, through a vertex, along an edge or a face, in chains that cross.
+POOR = perturbed(beam(5, 4, 4, size=(0.05, 0.04, 0.04)), 1.0, seed=0)
+POOR_VOLUME = POOR.volumes().sum()
+
+
+@st.composite
+def poor_planes(draw):
+    normal = np.array(draw(st.tuples(*[st.floats(-1, 1)] * 3)))
+    if np.linalg.norm(normal) < 0.1:
+        normal = np.array([0.2, 1.0, -0.3])
+    t = draw(st.integers(0, POOR.tet_count - 1))
+    corners = POOR.vertices[POOR.tets[t]]
+    kind = draw(st.sampled_from(["random", "vertex", "edge", "face"]))
+    point = corners.mean(axis=0) if kind == "random" else corners[0]
+    if kind == "edge":
+        normal = np.cross(corners[1] - corners[0], normal)
+    elif kind == "face":
+        normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+    return Plane(point, normal if np.linalg.norm(normal) > 1e-12 else [0.2, 1.0, -0.3])
+
+
+@settings(max_examples=30, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.too_slow])
+@given(plane=poor_planes(), method=st.sampled_from(REMESHING), epsilon=st.sampled_from([0.0, 0.1, 0.3]))
+def test_a_plane_cut_through_poor_elements_separates_and_keeps_the_volume(plane, method, epsilon):
+    topo = TetTopology(POOR)
+    cutter = Cutter(topo, method=method, epsilon=epsilon)
+    cutter.cut(plane)
+    check_topology(topo, POOR_VOLUME, volume_tolerance=1e-9)
+    assert_separates(topo, plane, cutter)
+
+
+@settings(max_examples=6, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.too_slow])
+@given(chain=st.lists(poor_planes(), min_size=5, max_size=5), method=st.sampled_from(["paulus", "bielser"]),
+       epsilon=st.sampled_from([0.0, 0.1]))
+def test_chains_of_five_cuts_through_poor_elements_each_separate(chain, method, epsilon):
+    topo = TetTopology(POOR)
+    cutter = Cutter(topo, method=method, epsilon=epsilon)
+    for plane in chain:
+        cutter.cut(plane)
+        check_topology(topo, POOR_VOLUME, volume_tolerance=1e-9)
+        assert_separates(topo, plane, cutter)
+
+
+# a plane through the poor beam where the remeshing refuses splits that would flatten elements
+REFUSING = Plane([0.022739233746429083, 0.015395734275277406, 0.010819470478723893],
+                 [0.16021416297716448, -0.818128926665578, 0.5522648652001644])
+
+
+@pytest.mark.parametrize("method", ["paulus", "bielser"])
+def test_where_the_remeshing_refuses_the_cut_is_separated_along_element_faces(method, monkeypatch):
+    topo = TetTopology(POOR)
+    cutter = Cutter(topo, method=method, epsilon=0.0)
+    result = cutter.cut(REFUSING)
+    assert result.stats.refused and result.stats.separated_vertices > 0
+    check_topology(topo, POOR_VOLUME, volume_tolerance=1e-9)
+    assert_separates(topo, REFUSING, cutter)
+    monkeypatch.setattr(Cutter, "_separate", lambda self, plane, stats: None)
+    topo = TetTopology(POOR)
+    without = Cutter(topo, method=method, epsilon=0.0)
+    without.cut(REFUSING)
     after = topo.to_mesh()
-    if method != "snap" and not result.stats.refused:
-        assert_separated(after, plane)
+    assert not plane_separation(after.vertices, after.tets, REFUSING, without.tolerance).separated
+
+
+def test_the_organ_cut_that_stayed_joined_separates():
+    organ = TetMesh.load(Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "organ.vtu")
+    plane = Plane([-0.000857, -0.002066, 0.012699], [0.18341, 0.26985, 0.94527])
+    topo = TetTopology(organ)
+    cutter = Cutter(topo)
+    cutter.cut(plane)
+    check_topology(topo, organ.volumes().sum(), volume_tolerance=1e-9)
+    assert_separates(topo, plane, cutter)
 
 
 @settings(max_examples=15, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import wcut
-from wcut.errors import MeshError, WcutError
+from wcut.errors import MeshError, MeshNotice, WcutError
 from wcut.mesh import TET_FACES, TetMesh, beam, tet_volumes, unique_rows
 
 # One positively oriented unit-corner tetrahedron and a second one glued to its face (1, 2, 3).
@@ -300,12 +300,24 @@ def test_load_ignores_other_cells_and_drops_their_vertices(tmp_path, small_beam)
     assert np.array_equal(loaded.tets, small_beam.tets)
 
 
-def test_load_rejects_a_vertex_no_cell_uses(tmp_path):
+def test_load_drops_a_vertex_no_cell_uses_with_a_notice(tmp_path):
+    """SOFA's raptors hold vertices no cell uses: they are dropped, said in one notice, and the
+    file's numbering kept for scene indices."""
     x = np.vstack([TET_X[:2], [[7.0, 7.0, 7.0]], TET_X[2:]])
     path = tmp_path / "gap.vtu"
     meshio.write(path, meshio.Mesh(x, [("tetra", np.array([[0, 1, 3, 4], [1, 3, 4, 5]]))]))
-    with pytest.raises(MeshError, match="gap.vtu: vertex 2 is not used by any cell"):
+    with pytest.warns(MeshNotice, match=r"gap.vtu: 1 vertices no cell uses are dropped \(file indices 2\)"):
+        loaded = TetMesh.load(path)
+    assert np.allclose(loaded.vertices, TET_X)
+    assert loaded.vertex_from_source(2) == -1 and loaded.vertex_from_source(3) == 2
+
+
+def test_an_unreadable_file_keeps_meshio_s_reason(tmp_path):
+    path = tmp_path / "short.vtk"
+    path.write_text("# vtk DataFile Version 2.0\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 float\n0 0 0\n")
+    with pytest.raises(MeshError, match="short.vtk: cannot read mesh: ") as info:
         TetMesh.load(path)
+    assert "malformed file" not in str(info.value) and len(str(info.value)) > len(f"{path}: cannot read mesh: ") + 5
 
 
 def test_load_drops_vertices_of_other_cells_and_keeps_the_file_numbering(tmp_path):

@@ -118,12 +118,8 @@ def test_organ_cut_is_an_incision_not_a_separation(organ):
     assert (result.nodes, result.elements) == (mesh.vertex_count, mesh.tet_count)
     assert mesh.tet_count > build_mesh(scene).tet_count + 100  # measured 4300 -> 4509
     assert connected_components(mesh).max() == 0  # one piece
-    # The rest volume: snapping may slide a vertex along a boundary edge over the curved
-    # surface (move_vertex's feature_angle), which changes the volume a little. Measured:
-    # -3.6e-5 (relative) after 45 frames, all of it from 5 slides over the organ's surface,
-    # and -9.0e-5 after the whole 90 frames. 1e-3 leaves a margin of ten over the whole run
-    # and still catches a cut that deletes the elements it crosses (some 1e-2 of the volume).
-    check_topology(topo, volume, volume_tolerance=1e-3)
+    # the rest volume is kept: no boundary vertex slides over the curved surface by default
+    check_topology(topo, volume, volume_tolerance=1e-9)
 
 
 def test_organ_cut_opens_where_the_blade_went(organ):

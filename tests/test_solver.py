@@ -201,7 +201,7 @@ def test_a_stiff_attachment_drags_its_point_to_the_target():
 
 def test_bad_input_raises_errors_that_say_what():
     _, model, _ = clamped_beam()
-    solver = SolverCorotational(model)
+    SolverCorotational(model)  # valid defaults
     with pytest.raises(SimulationError, match="cg_iterations"):
         SolverCorotational(model, cg_iterations=0)
     mesh = wcut.beam(2, 1, 1)

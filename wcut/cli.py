@@ -9,9 +9,10 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 
 from . import __version__
-from .errors import WcutError
+from .errors import MeshNotice, WcutError
 
 
 def _cmd_run(args) -> int:
@@ -189,6 +190,19 @@ def _init_warp_quietly() -> None:
                 print(line, file=sys.stderr)
 
 
+def _notices_as_lines(show):
+    """``warnings.showwarning`` that prints a :class:`~wcut.errors.MeshNotice` as one line and
+    passes any other warning to ``show``."""
+
+    def shown(message, category, filename, lineno, file=None, line=None) -> None:
+        if issubclass(category, MeshNotice):
+            print(f"wcut: note: {message}", file=sys.stderr)
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    return shown
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -197,7 +211,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     _init_warp_quietly()
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _notices_as_lines(warnings.showwarning)
+            return args.func(args)
     except WcutError as exc:
         message = " ".join(str(exc).split())
         print(f"wcut: error: {message}", file=sys.stderr)

@@ -39,3 +39,9 @@ class CaptureError(WcutError):
     """A capture directory (video or frames, camera.json, mask.png, model, internal
     structures, params.toml) is missing a file or holds an inconsistent one; the message
     names the file."""
+
+
+class MeshNotice(UserWarning):
+    """Something about an input mesh was repaired on loading (vertices no cell uses dropped);
+    a warning, so that a library user can filter it, and one line ``wcut: note: ...`` on the
+    command line."""

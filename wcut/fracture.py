@@ -729,7 +729,7 @@ class _Advance:
                 for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
                     if w not in (tri[i], tri[j]) or tri[3 + k] in moves:
                         continue
-                    r, m = (tri[j] if tri[i] == w else tri[i]), tri[3 + k]
+                    m = tri[3 + k]
                     rest_m = X[m] + 0.5 * (rest_w - X[w])
                     config = x if f.variant == "spatial" else X
                     target = config[m] + 0.5 * (shell_point(config, tris, t, L) - config[w])

@@ -399,7 +399,7 @@ class RotatedCholesky:
         This object must not be used afterwards."""
         out = RotatedCholesky.__new__(RotatedCholesky)
         out.model, out.background = model, self.background
-        d, n = model.device, model.particle_count
+        d = model.device
         out.node_rotation = wp.array(_carried_rotations(self.node_rotation.numpy(), change), dtype=wp.quat, device=d)
         out.owner = wp.array(_owners(model), dtype=wp.int32, device=d)
         out._factor, out._factored_for, out._arrays = self._factor, self._factored_for, self._arrays

@@ -175,7 +175,7 @@ class Capture:
 
     def _read_mask(self, path: Path) -> np.ndarray:
         if not path.exists():
-            raise CaptureError(f"mask.png: missing (the region of interest, white where features are sought)")
+            raise CaptureError("mask.png: missing (the region of interest, white where features are sought)")
         mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if mask is None:
             raise CaptureError("mask.png: not an image OpenCV reads")

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from ..cut.surface import joined, strip
-from ..errors import CaptureError, SimulationError, WcutError
+from ..errors import CaptureError, SimulationError
 from ..io import atomic_path
 from ..model import Attachments, Model
 from ..scene import _progress, render_surface

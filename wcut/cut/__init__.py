@@ -5,6 +5,8 @@
 - ``cutter``: :class:`Cutter`, the method of the thesis (``paulus``) and the baselines it is
   compared with (``bielser``, ``snap``, ``delete``), all producing a
   :class:`~wcut.topology.TopologyChange`.
+- ``separation``: whether a complete cut separated a mesh, with pieces as a simulation sees
+  them (elements sharing a vertex move together).
 """
 
 from .cutter import METHODS, CutError, Cutter, CutResult, CutStats

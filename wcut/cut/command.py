@@ -3,16 +3,16 @@
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 
 from ..io import atomic_path, check_writable
 from ..mesh import dihedral_angles
 from ..quadratic import load_mesh
-from ..topology import TetTopology, connected_components
+from ..topology import TetTopology
 from .cutter import CutError, Cutter
 from .quadratic import QuadraticCutter
+from .separation import pieces, plane_separation
 from .surface import CutSurface, Plane, TriangleSurface
 
 
@@ -30,19 +30,33 @@ def parse_plane(text: str) -> Plane:
 def cut_mesh(mesh, surface: CutSurface, method: str = "paulus", epsilon: float = 0.1):
     """Cut ``mesh`` (rest configuration; a :class:`~wcut.mesh.TetMesh` or a
     :class:`~wcut.quadratic.QuadraticTetMesh`) with ``surface``; returns (mesh after, report
-    dict). Volumes are exact for curved elements, the dihedral angles are the corners'.
+    dict). Volumes are exact for curved elements, the angles and pieces are the corners'.
+    ``components`` counts pieces as a simulation sees them: elements sharing a vertex move
+    together (:func:`wcut.cut.separation.pieces`).
 
-    Raises CutError when the surface misses the mesh."""
+    Raises CutError when the surface misses the mesh, or when a plane cut (complete) left a
+    piece on both sides of the plane (:func:`wcut.cut.separation.plane_separation`)."""
     if getattr(mesh, "order", 1) == 2:
-        result = QuadraticCutter(mesh, method=method, epsilon=epsilon).cut(surface)
-        after, stats = result.mesh, result.stats
+        cutter = QuadraticCutter(mesh, method=method, epsilon=epsilon)
+        result = cutter.cut(surface)
+        after, stats, corner_cutter = result.mesh, result.stats, cutter.cutter
     else:
         topology = TetTopology(mesh)
-        result = Cutter(topology, method=method, epsilon=epsilon).cut(surface)
+        corner_cutter = Cutter(topology, method=method, epsilon=epsilon)
+        result = corner_cutter.cut(surface)
         after, stats = topology.to_mesh(name=mesh.name), result.stats
     if result.change.is_empty:
         raise CutError(f"the cut surface misses the mesh {mesh.name} (no element crossed)")
+    before_corners = mesh.linear() if getattr(mesh, "order", 1) == 2 else mesh
     corners = after.linear() if getattr(after, "order", 1) == 2 else after
+    if isinstance(surface, Plane):
+        separation = plane_separation(corners.vertices, corners.tets, surface, corner_cutter.tolerance,
+                                      mean_edge_length=corner_cutter.mean_edge_length,
+                                      in_plane=corner_cutter.in_plane)
+        if not separation.separated:
+            raise CutError(f"the cut did not separate {mesh.name}: {separation.describe()}; nothing written")
+    angles = dihedral_angles(corners.vertices, corners.tets).reshape(len(corners.tets), -1).min(axis=1)
+    volumes = after.volumes()
     report = {
         "nodes_before": mesh.vertex_count,
         "nodes_after": after.vertex_count,
@@ -50,9 +64,13 @@ def cut_mesh(mesh, surface: CutSurface, method: str = "paulus", epsilon: float =
         "elements_after": after.tet_count,
         "cut_elements": stats.cut_elements,
         "volume_before": float(mesh.volumes().sum()),
-        "volume_after": float(after.volumes().sum()),
-        "min_dihedral_deg": float(dihedral_angles(corners.vertices, corners.tets).min()),
-        "components": int(connected_components(corners).max() + 1),
+        "volume_after": float(volumes.sum()),
+        "min_dihedral_deg": float(angles.min()),
+        "min_dihedral_deg_before": float(dihedral_angles(before_corners.vertices, before_corners.tets).min()),
+        "elements_below_1deg": int((angles < 1.0).sum()),
+        "elements_below_5deg": int((angles < 5.0).sum()),
+        "min_volume_to_median": float(volumes.min() / np.median(volumes)),
+        "components": int(pieces(corners.tets, corners.vertex_count).max() + 1),
         "method": method,
         "epsilon": epsilon,
         "order": getattr(mesh, "order", 1),

@@ -230,7 +230,6 @@ class _Placement:
     def __init__(self, before: QuadraticTetMesh, corner_tets_before: np.ndarray, corner_nodes: np.ndarray,
                  parameters: np.ndarray, topo: TetTopology, linear: TopologyChange):
         self.before, self.linear = before, linear
-        x = before.vertices
         after_tets = topo.tets[topo.live_tets()]
         self.corner_tets = after_tets
         after = topo.rest_positions  # parameter positions of the corners after the cut
@@ -409,7 +408,8 @@ class _Placement:
                     straightened.add(e)
                     boundary_count += on_boundary
         raise CutError(f"cutting quadratic elements: {len(bad)} element(s) would fold (det J <= 0) even with "
-                       f"their new edges straight; the cut is refused")
+                       f"their new edges straight; the cut is refused: cut with another epsilon, move the "
+                       f"surface by a fraction of an edge, or refine the mesh there")
 
     def _straighten(self, e: int) -> None:
         """Put the node of new edge ``e`` at the midpoint of its corners."""
@@ -515,7 +515,9 @@ def _locate(points: np.ndarray, hints: np.ndarray, corners_x: np.ndarray, tets: 
     inside = np.all((q[:, None] >= lower[None]) & (q[:, None] <= upper[None]), axis=2)
     rows, cols = np.nonzero(inside)
     if len(np.unique(rows)) < len(outside):
-        raise CutError("cutting quadratic elements: a new node lies in no element that changed")
+        raise CutError("cutting quadratic elements: a new edge node lies outside every element the cut changed "
+                       "(the curved boundary bends too much there for these elements); cut with another "
+                       "epsilon, move the surface by a fraction of an edge, or refine the mesh there")
     full = _barycentric(q[rows], x[cols])
     score = full.min(axis=1)
     order = np.lexsort((-score, rows))  # per point, best first

@@ -11,6 +11,8 @@
   per batch.
 - ``region``: :class:`~wcut.topology.region.TetRegion`, the elements a cut touches copied into
   ``TetArrays`` and written back: the cutter's compiled insertion and disconnection.
+- ``improve``: local mesh improvement after a change (flips and smoothing that keep the
+  boundary, the cut surface and the volume).
 - ``shell``: the operators of quadratic shells that fracture uses (open edges, move nodes,
   split a triangle into four) and their check (thesis 6.2).
 """

@@ -39,7 +39,7 @@ import struct
 import numpy as np
 
 from ..errors import WcutError
-from ..mesh import DEGENERATE_TOL, TET_FACES, TetMesh
+from ..mesh import TET_FACES, TetMesh
 
 #: Columns of ``vertex_data``.
 REST, POSITION, VELOCITY = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -729,6 +729,15 @@ class TetTopology:
     def begin_change(self) -> None:
         """Start recording a topological event (see :meth:`end_change`)."""
         self._journal = _Journal(self)
+
+    def changed_tets(self) -> list[int]:
+        """Live element slots made, reshaped or rewired since :meth:`begin_change` (ascending):
+        where work local to the change (mesh improvement) looks."""
+        journal = self._journal
+        if journal is None:
+            raise TopologyError("changed_tets() without begin_change()")
+        alive = self.alive
+        return sorted(t for t in set(journal.origin) | journal.reshaped | journal.rewired if alive[t])
 
     def end_change(self):
         """Stop recording and return the :class:`~wcut.topology.change.TopologyChange` from

@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from ..mesh import DEGENERATE_TOL
-from .mesh import (REST, TetTopology, TopologyError, face_key, rounded32, signed_volume, tet_quality,
+from .mesh import (REST, TetTopology, TopologyError, rounded32, signed_volume, tet_quality,
                    tet_quality_and_length)
 
 #: Up to this many elements :func:`tet_qualities` loops in plain floats: numpy's per-call
@@ -287,13 +287,15 @@ def split_face(topo: TetTopology, key: tuple[int, int, int], weights) -> tuple[i
                                 qualities)
 
 
-def flip23(topo: TetTopology, key: tuple[int, int, int], quality_drop: float | None = None) -> list[int]:
+def flip23(topo: TetTopology, key: tuple[int, int, int], quality_drop: float | None = None, *,
+           accept=None) -> list[int]:
     """2-3 flip (thesis figure 5.2): the two elements on interior face ``key`` = (a, b, c),
     with apices d and e, become (d, e, a, b), (d, e, b, c), (d, e, c, a) around edge (d, e).
     Refused unless segment d-e passes through the face, and, with ``quality_drop``, unless
     the worst new element's quality (float64, rest) is at least ``quality_drop`` times that
     of the worse of the two elements it replaces (a flip can make a sliver next to a good
-    element). Returns the new elements."""
+    element), and, with ``accept`` (mesh improvement), unless ``accept(removed, added)`` (slots,
+    vertex lists) is true. Returns the new elements."""
     owners = topo.face_tets.get(key, ())
     if len(owners) != 2 or key in topo.unsewn:
         raise TopologyError(f"flip 2-3 of face {key}: not an interior face")
@@ -315,6 +317,8 @@ def flip23(topo: TetTopology, key: tuple[int, int, int], quality_drop: float | N
         if not worst >= quality_drop * before:
             raise TopologyError(f"flip 2-3 of face {key}: its worst element would have {worst / before:.2g} "
                                 f"of the quality of the worse element it replaces")
+    if accept is not None and not accept([t0, t1], added):
+        raise TopologyError(f"flip 2-3 of face {key}: not an improvement")
     return topo.replace_tets([t0, t1], added, _containing(topo, [t0, t1], added), qualities)
 
 
@@ -339,7 +343,7 @@ def bisect_edge(topo: TetTopology, a: int, b: int, s: float) -> tuple[int, list[
 
 
 def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool = False,
-                volume_tolerance: float = 1e-12, canonical: bool = False) -> list[int]:
+                volume_tolerance: float = 1e-12, canonical: bool = False, accept=None) -> list[int]:
     """General flip, or edge removal (thesis figure 5.3): the n elements around edge (a, b)
     become 2(n - 2) elements (a, tau) and (b, tau) over a triangulation tau of the polygon of
     their other vertices (closed for an interior edge; closed by one more edge for a
@@ -350,7 +354,9 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     its two boundary faces are coplanar: it is refused when the relative change exceeds
     ``volume_tolerance`` unless ``allow_volume_change``. Between equally good triangulations
     the choice depends on where the polygon starts: ``canonical`` starts it as the compiled
-    operator does (``TetTopology.edge_ring``). Returns the new elements.
+    operator does (``TetTopology.edge_ring``). With ``accept`` (mesh improvement) it is
+    refused unless ``accept(removed, added)`` (slots, vertex lists) is true. Returns the new
+    elements.
     """
     ring, polygon, closed = topo.edge_ring(a, b, canonical)
     rest = topo.rest_tuples
@@ -381,6 +387,8 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     added = [[u, v, w, b] for u, v, w in triangles] + [[u, w, v, a] for u, v, w in triangles]
     qualities: list[float] = []
     _check(topo, added, f"general flip of edge ({a}, {b})", None, qualities)  # float32 too
+    if accept is not None and not accept(ring, added):
+        raise TopologyError(f"general flip of edge ({a}, {b}): not an improvement")
     if not closed:
         before = sum(topo.rest_volume(t) for t in ring)
         after = sum(signed_volume(*[rest[v] for v in t]) for t in added)

@@ -1,0 +1,250 @@
+"""Local mesh improvement after a topological change (beyond thesis chapter 5).
+
+A cut leaves elements as flat as its geometry makes them: a crossing close to a vertex that
+could not snap gives a sliver, and later cuts make it worse. Like the dynamic local remeshing
+of Wicke et al. (2010), with the moves of Klingner and Shewchuk's Stellar (2007), this pass
+improves the elements a change made, and their neighbours, in the rest configuration:
+
+- *topological moves*: the general flip of an edge (``remove_edge``: the 3-2 and 4-4 flips
+  and larger rings, the best triangulation of the ring by dynamic programming) and the 2-3
+  flip of a face (``flip23``);
+- *smoothing*: a vertex moves towards the centroid of its neighbours, or away from the
+  opposite face of its worst element, within its star (``move_vertex``, whose state is carried
+  by interpolation in the change record). A boundary vertex moves only within a flat boundary
+  (there the move keeps the boundary and the volume to rounding); *frozen* vertices (on the cut
+  surface, its lips) never move.
+
+The measure is the smallest sine of an element's six dihedral angles (:func:`min_sine`):
+small for slivers, needles and caps alike (a dihedral angle near 0 or near 180 degrees both
+make the element stiff). Each move is made only if it raises the worst measure of the
+elements it replaces or reshapes, so the worst element never gets worse; every move keeps
+the rest volume, the outer boundary and the cut surface: a flip of a boundary edge only where
+its boundary faces are coplanar, no flip removes an edge or a face whose vertices are all
+frozen.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .mesh import TetTopology, TopologyError, face_key
+from .operators import flip23, move_vertex, remove_edge
+
+#: Elements whose smallest dihedral angle is below this (degrees) are improved.
+TARGET_ANGLE = 5.0
+
+#: Passes over the elements still below the target (each pass may create new poor neighbours).
+PASSES = 3
+
+#: Smoothing tries these fractions of the step towards each candidate position.
+STEPS = (1.0, 0.5, 0.25)
+
+#: The six edges of a tetrahedron, as local vertex pairs.
+_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+
+
+@dataclass
+class ImproveStats:
+    """What :func:`improve` did; the worst dihedral angles (degrees) of the elements it
+    looked at, before and after."""
+
+    edge_flips: int = 0
+    face_flips: int = 0
+    smoothed: int = 0
+    worst_before: float = math.nan
+    worst_after: float = math.nan
+
+
+def min_sine(p0, p1, p2, p3) -> float:
+    """The smallest sine of the six dihedral angles of a tetrahedron (corners as float
+    triples, m): ``sin(theta_e) = 3 V l_e / (2 A_f A_g)`` at edge e between faces f and g.
+    Signed as the volume (negative for an inverted element); 0.943 for the regular one."""
+    e01, e02, e03 = _sub(p1, p0), _sub(p2, p0), _sub(p3, p0)
+    e12, e13, e23 = _sub(p2, p1), _sub(p3, p1), _sub(p3, p2)
+    # twice the areas of the faces opposite corners 0..3
+    f0, f1, f2, f3 = _norm(_cross(e12, e13)), _norm(_cross(e02, e03)), _norm(_cross(e01, e03)), _norm(_cross(e01, e02))
+    if f0 * f1 * f2 * f3 == 0.0:
+        return 0.0
+    six_v = _dot(e01, _cross(e02, e03))
+    # edge (i, j) joins the faces opposite its two other corners; with 6V and doubled areas F,
+    # sin = 3 V l / (2 A A') = 6V l / (F F')
+    pairs = ((e01, f2, f3), (e02, f1, f3), (e03, f1, f2), (e12, f0, f3), (e13, f0, f2), (e23, f0, f1))
+    return min(six_v * _norm(e) / (fa * fb) for e, fa, fb in pairs)
+
+
+def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TARGET_ANGLE) -> ImproveStats:
+    """Improve live elements ``elements`` (slots) whose smallest dihedral angle is below
+    ``target`` (degrees), and what the moves make. ``frozen``: vertices that must not move
+    (the cut surface)."""
+    stats = ImproveStats()
+    goal = math.sin(math.radians(target))
+    sine = _Sines(topo)
+    work = {t for t in elements if topo.alive[t]}
+    if not work:
+        return stats
+    stats.worst_before = _degrees(min(sine(t) for t in work))
+    for _ in range(PASSES):
+        poor = sorted((sine(t), t) for t in work if topo.alive[t] and sine(t) < goal)
+        if not poor:
+            break
+        changed = False
+        for _, t in poor:
+            if not topo.alive[t] or sine(t) >= goal:
+                continue
+            made = _flip_edges(topo, t, frozen, sine, stats) or _flip_faces(topo, t, frozen, sine, stats) \
+                or _smooth(topo, t, frozen, sine, stats)
+            if made:
+                work.update(made)
+                changed = True
+        if not changed:
+            break
+    live = [t for t in work if topo.alive[t]]
+    stats.worst_after = _degrees(min(sine(t) for t in live)) if live else math.nan
+    return stats
+
+
+class _Sines:
+    """:func:`min_sine` of live element slots (rest configuration), remembered with the
+    corners they were computed from."""
+
+    def __init__(self, topo: TetTopology):
+        self.topo = topo
+        self.known: dict[int, tuple[tuple, float]] = {}
+
+    def __call__(self, t: int) -> float:
+        rest = self.topo.rest_tuples
+        corners = tuple(rest[v] for v in self.topo.tets[t].tolist())
+        hit = self.known.get(t)
+        if hit is not None and hit[0] == corners:
+            return hit[1]
+        value = min_sine(*corners)
+        self.known[t] = (corners, value)
+        return value
+
+    def of(self, tets) -> float:
+        rest = self.topo.rest_tuples
+        return min(min_sine(*[rest[v] for v in tet]) for tet in tets)
+
+
+def _better(sine: _Sines):
+    """An ``accept`` for the flips: the new elements' worst sine exceeds the removed ones'."""
+    return lambda removed, added: sine.of(added) > min(sine(t) for t in removed)
+
+
+def _flip_edges(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats) -> list[int]:
+    """A general flip of one of element t's edges that raises the worst sine of its ring."""
+    tet = topo.tet(t)
+    for i, j in _EDGES:
+        a, b = tet[i], tet[j]
+        if a in frozen and b in frozen:
+            continue  # an edge on the cut surface stays
+        try:
+            made = remove_edge(topo, a, b, accept=_better(sine))
+        except TopologyError:
+            continue
+        stats.edge_flips += 1
+        return made
+    return []
+
+
+def _flip_faces(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats) -> list[int]:
+    """A 2-3 flip of one of element t's faces that raises the worst sine of the pair."""
+    tet = topo.tet(t)
+    for k in range(4):
+        key = face_key(*[tet[m] for m in range(4) if m != k])
+        if all(v in frozen for v in key):
+            continue  # a face on the cut surface stays
+        owners = topo.face_tets.get(key, ())
+        if len(owners) != 2 or key in topo.unsewn:
+            continue
+        try:
+            made = flip23(topo, key, accept=_better(sine))
+        except TopologyError:
+            continue
+        stats.face_flips += 1
+        return made
+    return []
+
+
+def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats) -> list[int]:
+    """Move one vertex of element t to where the worst sine of its star rises most (the best
+    move that ``move_vertex`` accepts)."""
+    rest = topo.rest_tuples
+    moves = []
+    for v in topo.tet(t):
+        if v in frozen:
+            continue
+        star = sorted(topo.vertex_tets[v])
+        now = min(sine(s) for s in star)
+        for parents, weights in _candidates(topo, v, star, sine):
+            for step in STEPS:
+                full, w = _merge([v] + parents, [1.0 - step] + [step * x for x in weights])
+                p = _combine([rest[u] for u in full], w)
+                q = min(min_sine(*[p if u == v else rest[u] for u in topo.tets[s].tolist()]) for s in star)
+                if q > now:
+                    moves.append((q - now, v, full, w))
+    for _, v, parents, weights in sorted(moves, key=lambda m: -m[0]):
+        try:
+            move_vertex(topo, v, parents, weights)
+        except TopologyError:
+            continue
+        stats.smoothed += 1
+        return sorted(topo.vertex_tets[v])
+    return []
+
+
+def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
+    """Target positions of vertex v as combinations (parents, weights summing to 1) of
+    vertices: the centroid of its neighbours (of its boundary neighbours for a boundary
+    vertex, which keeps it in a flat boundary's plane) and, inside, v pushed away from the
+    face opposite it in its worst element by a quarter of its distance from that face's
+    centroid."""
+    boundary = topo.is_boundary_vertex(v)
+    neighbours = sorted({u for s in star for u in topo.tets[s].tolist()} - {v})
+    if boundary:
+        neighbours = [u for u in neighbours if topo.is_boundary_edge(v, u)]
+    if neighbours:
+        yield neighbours, [1.0 / len(neighbours)] * len(neighbours)
+    if not boundary:
+        worst = min(star, key=sine)
+        face = [u for u in topo.tets[worst].tolist() if u != v]
+        yield [v] + face, [1.25] + [-0.25 / 3.0] * 3
+
+
+def _merge(parents: list[int], weights: list[float]) -> tuple[list[int], list[float]]:
+    """Parents without repeats (their weights summed), the weights renormalised to sum to 1."""
+    merged: dict[int, float] = {}
+    for u, w in zip(parents, weights):
+        merged[u] = merged.get(u, 0.0) + w
+    total = sum(merged.values())
+    return list(merged), [w / total for w in merged.values()]
+
+
+def _combine(points, weights):
+    x = y = z = 0.0
+    for (px, py, pz), w in zip(points, weights):
+        x += w * px
+        y += w * py
+        z += w * pz
+    return x, y, z
+
+
+def _degrees(sine: float) -> float:
+    return math.degrees(math.asin(max(-1.0, min(1.0, sine))))
+
+
+def _sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _dot(a, b) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _norm(a) -> float:
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
