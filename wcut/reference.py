@@ -110,7 +110,7 @@ def _per_element(value, name, n_elements):
     return arr.copy()
 
 
-def _symmetric_factor(K: sp.csc_matrix):
+def _symmetric_factor(K: sp.csc_matrix) -> "_OrderedFactor":
     """SuperLU's factor of a symmetric positive definite matrix of 3-vectors, on a nested
     dissection order of its nodes (SuperLU's own orders fill in far more on 3-D meshes: minutes
     for 66k unknowns): ``solve(b)`` solves ``K x = b``."""
@@ -120,15 +120,21 @@ def _symmetric_factor(K: sp.csc_matrix):
     dofs = (3 * order[:, None] + np.arange(3)).ravel()
     lu = spla.splu(K[dofs][:, dofs].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
                    options=dict(SymmetricMode=True))
+    return _OrderedFactor(lu, dofs)
 
-    class _Solve:
-        @staticmethod
-        def solve(b):
-            x = np.empty_like(b)
-            x[dofs] = lu.solve(b[dofs])
-            return x
 
-    return _Solve
+class _OrderedFactor:
+    """A factor of ``K`` permuted by ``dofs``. A plain object: a class made per call (with its
+    closure) is a reference cycle, and its gigabytes of native factor waited for Python's cycle
+    collector while Newton's method made the next one."""
+
+    def __init__(self, lu, dofs: np.ndarray):
+        self.lu, self.dofs = lu, dofs
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        x = np.empty_like(b)
+        x[self.dofs] = self.lu.solve(b[self.dofs])
+        return x
 
 
 class ScipyCorotationalStep:
