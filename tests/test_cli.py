@@ -298,3 +298,110 @@ def test_a_plane_cut_that_does_not_separate_exits_2_and_writes_nothing(tmp_path,
     err = capsys.readouterr().err
     assert "the cut did not separate poor.vtu" in err and "straddle" in err and err.count("\n") == 1
     assert not out.exists() and not report.exists()
+
+
+def test_the_first_run_on_a_terminal_says_kernels_are_compiling(tmp_path, tiny_scene, capsys, monkeypatch):
+    """One line before a command's kernels compile the first time (a marker in Warp's kernel
+    cache, named by the kernels' sources, remembers it); nothing the second time."""
+    import warp as wp
+
+    monkeypatch.setattr(wp.config, "kernel_cache_dir", str(tmp_path / "cache"))
+    (tmp_path / "cache").mkdir()
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    argv = ["run", str(tiny_scene), "-o", str(tmp_path / "a.usda"), "--frames", "1", "--quiet"]
+    assert main(argv) == 0
+    assert "wcut: compiling kernels, once" in capsys.readouterr().err
+    assert main(argv) == 0
+    assert "compiling" not in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------
+# bad input found by fuzzing the command line: each refused in one line, before any work,
+# leaving nothing behind and deleting nothing
+
+
+def _argparse_fails_with_one_line(capsys, argv, *words) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("wcut: error: "), lines
+    for word in words:
+        assert word in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["fly"], ["invalid choice"]),
+    (["run"], ["run:", "SCENE.toml"]),
+    (["cut", "x.vtu"], ["cut:", "-o/--output"]),
+    (["run", "s.toml", "--frames", "0"], ["--frames", "positive integer"]),
+])
+def test_argparse_errors_are_one_line(capsys, argv, words):
+    _argparse_fails_with_one_line(capsys, argv, *words)
+
+
+AR_SCENE = Path(__file__).resolve().parents[1] / "scenes" / "ar" / "band_control.toml"
+
+
+def test_synth_refuses_a_directory_of_other_files_and_a_file(tmp_path, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("years of work")
+    _fails_with_one_line(capsys, ["synth", str(AR_SCENE), "-o", str(mine), "--quiet"], "other files than a capture")
+    assert (mine / "thesis.tex").read_text() == "years of work"
+    file = tmp_path / "notes.txt"
+    file.write_text("keep")
+    _fails_with_one_line(capsys, ["synth", str(AR_SCENE), "-o", str(file), "--quiet"], "is a file")
+    assert file.read_text() == "keep"
+
+
+@pytest.mark.parametrize("name", ["out.xyz", "out", "out.obj", "out.stl"])
+def test_cut_refuses_an_output_format_without_tetrahedra_before_cutting(tmp_path, capsys, monkeypatch, name):
+    from wcut.cut import Cutter
+    from wcut.mesh import beam
+
+    source = tmp_path / "beam.vtu"
+    beam(2, 2, 2).save(source)
+    monkeypatch.setattr(Cutter, "cut", lambda *a, **k: pytest.fail("cut before the output was checked"))
+    _fails_with_one_line(capsys, ["cut", str(source), "-o", str(tmp_path / name), "--plane", "0.5,0,0,1,0,0"],
+                         "cannot write a tetrahedral mesh")
+    assert not (tmp_path / name).exists()
+
+
+def test_cut_takes_a_huge_normal_and_a_negative_first_value(tmp_path, capsys):
+    import json
+
+    from wcut.mesh import beam
+
+    source = tmp_path / "beam.vtu"
+    beam(4, 2, 2, size=(0.2, 0.1, 0.1), origin=(-0.1, 0.0, 0.0)).save(source)
+    out, report = tmp_path / "cut.vtu", tmp_path / "r.json"
+    for plane in (["--plane", "-0.011,0,0,1e308,0,0"], ["--plane=-0.011,0,0,1,1e-300,0"]):
+        assert main(["cut", str(source), "-o", str(out), *plane, "--report", str(report)]) == 0
+        assert json.loads(report.read_text())["components"] == 2
+
+
+def test_a_report_that_cannot_be_written_leaves_no_mesh(tmp_path, capsys):
+    from wcut.mesh import beam
+
+    source = tmp_path / "beam.vtu"
+    beam(2, 2, 2).save(source)
+    out = tmp_path / "cut.vtu"
+    _fails_with_one_line(capsys, ["cut", str(source), "-o", str(out), "--plane", "0.5,0,0,1,0,0",
+                                  "--report", "/proc/wcut-report.json"], "cannot write here")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("extra, words", [
+    ("[simulation]\nduration = 1e308\nfps = 30\n", ["simulation", "frames"]),
+    ("[simulation]\nduration = 1.0\nfps = 1e308\n", ["simulation", "frames"]),
+    ("[loads]\ngravity = [0.0, 0.0, -1e300]\n", ["loads.gravity", "beyond"]),
+    ("[mesh]\ngenerator = \"beam\"\ncells = [100000, 100000, 100000]\n", ["mesh.cells", "at most"]),
+])
+def test_absurd_scene_magnitudes_are_refused_at_once(tmp_path, write_scene, capsys, extra, words):
+    text = f'name = "absurd"\n{extra}'
+    if "[mesh]" not in extra:
+        text += '[mesh]\ngenerator = "beam"\ncells = [2, 1, 1]\nsize = [0.1, 0.05, 0.05]\n'
+    path = write_scene(tmp_path, text, "absurd.toml")
+    _fails_with_one_line(capsys, ["run", str(path), "-o", str(tmp_path / "x.usdc"), "--quiet"], *words)
+    assert not (tmp_path / "x.usdc").exists()

@@ -729,3 +729,31 @@ def test_a_blow_up_is_an_error_naming_the_step():
     with pytest.raises(SimulationError, match=r"diverged in step 4 .*m/s"):
         solver.check()
     solver.check()  # reported once: the next check looks at the steps since
+
+
+def test_newton_s_step_signature_and_numpy_time_steps():
+    """``step(state_in, state_out, control, contacts, dt)`` as Newton's solvers take it (contacts
+    None), NumPy scalars for dt; the same step as ``step(state_in, state_out, control, dt)``."""
+    _, model, _ = clamped_beam()
+    ours, newton = SolverCorotational(model), SolverCorotational(model)
+    a, b, c, d = model.state(), model.state(), model.state(), model.state()
+    for _ in range(3):
+        ours.step(a, b, None, 0.01)
+        newton.step(c, d, None, None, np.float64(0.01))
+        a, b, c, d = b, a, d, c
+    np.testing.assert_array_equal(a.particle_q.numpy(), c.particle_q.numpy())
+    newton.step(c, d, None, dt=np.float32(0.01))
+    newton.step(c, d, None, None, np.array(0.01))
+    with pytest.raises(SimulationError, match="no contacts"):
+        newton.step(c, d, None, object(), 0.01)
+    for bad in (True, "0.01", np.array([0.01]), -0.01, float("nan")):
+        with pytest.raises(SimulationError, match="time step must be a positive finite number"):
+            newton.step(c, d, None, bad)
+
+
+def test_state_and_control_take_newton_s_keywords():
+    _, model, _ = clamped_beam()
+    assert model.state(requires_grad=False).particle_q.shape == (model.particle_count,)
+    model.control(requires_grad=None, clone_variables=False)
+    with pytest.raises(wcut.ModelError, match="not differentiable"):
+        model.state(requires_grad=True)

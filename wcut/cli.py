@@ -103,8 +103,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the contract's errors: one line ``wcut: error: ...`` and exit 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"wcut: error: {self.prog.removeprefix('wcut ')}: {message}\n" if self.prog != "wcut"
+                  else f"wcut: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="wcut", description="Real-time cutting, tearing and fracture of deformable objects (Warp FEM).")
     parser.add_argument("--version", action="version", version=f"wcut {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -125,7 +133,9 @@ def build_parser() -> argparse.ArgumentParser:
     cut.add_argument("-o", "--output", metavar="MESH_OUT", required=True,
                      help="output mesh (format from the extension: .vtu, .msh, .vtk, .mesh, ...)")
     where = cut.add_mutually_exclusive_group(required=True)
-    where.add_argument("--plane", metavar="px,py,pz,nx,ny,nz", help="an infinite cut plane: point and normal (m)")
+    where.add_argument("--plane", metavar="px,py,pz,nx,ny,nz",
+                       help="an infinite cut plane: point and normal (m); a first value below zero works as "
+                            "--plane -0.01,0,0,1,0,0 or --plane=-0.01,0,0,1,0,0")
     where.add_argument("--surface", metavar="TRIS.obj", help="a triangulated cut surface (Wavefront .obj, m)")
     cut.add_argument("--method", choices=("paulus", "bielser", "snap", "delete"), default="paulus",
                      help="remeshing method (default: paulus, thesis chapter 5)")
@@ -167,6 +177,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Commands that run Warp kernels: the first run of each compiles them (some 20 s per command
+#: on two cores; a line on a terminal says so), later runs load them from Warp's cache.
+COMPILING_COMMANDS = ("run", "cut", "bench", "ar", "synth")
+
+
 def _init_warp_quietly() -> None:
     """Initialise Warp without its banner, and without the native CPU-only notice that no CUDA
     driver was found (printed straight to file descriptor 2); any other native message is kept."""
@@ -190,6 +205,23 @@ def _init_warp_quietly() -> None:
                 print(line, file=sys.stderr)
 
 
+def _compile_marker(command: str):
+    """The file in Warp's kernel cache that says this command's kernels of this wcut are
+    compiled (named by a digest of the kernels' sources), and whether it exists."""
+    import hashlib
+    from pathlib import Path
+
+    import warp as wp
+
+    from . import kernels
+
+    digest = hashlib.sha1()
+    for source in sorted(Path(kernels.__file__).parent.glob("*.py")):
+        digest.update(source.read_bytes())
+    marker = Path(wp.config.kernel_cache_dir) / f"wcut-{__version__}-{digest.hexdigest()[:12]}-{command}"
+    return marker, marker.exists()
+
+
 def _notices_as_lines(show):
     """``warnings.showwarning`` that prints a :class:`~wcut.errors.MeshNotice` as one line and
     passes any other warning to ``show``."""
@@ -203,17 +235,35 @@ def _notices_as_lines(show):
     return shown
 
 
+def _joined_negative_values(argv: list[str]) -> list[str]:
+    """``--plane -0.01,0,0,1,0,0`` as ``--plane=-0.01,...``: argparse takes a value that starts
+    with '-' and is not a plain number for an option."""
+    out = []
+    for i, arg in enumerate(argv):
+        if i and argv[i - 1] == "--plane" and arg.startswith("-") and "," in arg:
+            out[-1] = f"--plane={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_joined_negative_values(sys.argv[1:] if argv is None else list(argv)))
     if args.command is None:
         parser.print_help()
         return 2
     _init_warp_quietly()
+    marker, compiled = _compile_marker(args.command)
+    if not compiled and args.command in COMPILING_COMMANDS and sys.stderr.isatty():
+        print("wcut: compiling kernels, once, about 20-60 s", file=sys.stderr, flush=True)
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _notices_as_lines(warnings.showwarning)
-            return args.func(args)
+            status = args.func(args)
+        if not compiled and status == 0:
+            marker.touch()
+        return status
     except WcutError as exc:
         message = " ".join(str(exc).split())
         print(f"wcut: error: {message}", file=sys.stderr)

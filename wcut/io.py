@@ -41,8 +41,9 @@ def atomic_path(path: str | os.PathLike):
 
 def check_writable(path: str | os.PathLike) -> None:
     """Raise :class:`ExportError` now if ``path`` could not be written later: long runs check
-    their output before they start. Creates nothing (the nearest existing directory on the way
-    must be writable, so the missing ones can be made when the file is written)."""
+    their output before they start. Leaves nothing behind (the nearest existing directory on
+    the way must take a file, made and removed here, so the missing ones can be made when the
+    file is written)."""
     path = Path(path).absolute()
     if path.is_dir():
         raise ExportError(f"{path}: is a directory")
@@ -53,3 +54,9 @@ def check_writable(path: str | os.PathLike) -> None:
         raise ExportError(f"{path}: cannot write here: {ancestor} is not a directory")
     if not os.access(ancestor, os.W_OK | os.X_OK):
         raise ExportError(f"{path}: cannot write here: {ancestor} is not writable")
+    try:  # a file made and removed: what os.access cannot tell (root on a read-only mount, /proc)
+        fd, probe = tempfile.mkstemp(prefix=".wcut-probe.", dir=ancestor)
+        os.close(fd)
+        os.remove(probe)
+    except OSError as exc:
+        raise ExportError(f"{path}: cannot write here: {exc.strerror or exc}") from None

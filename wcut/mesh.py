@@ -165,6 +165,19 @@ def unused_vertex_notice(name: str, unused: np.ndarray) -> None:
                   MeshNotice, stacklevel=3)
 
 
+#: Extensions of the meshio formats that hold tetrahedra (linear and quadratic). Others
+#: (.stl, .obj, .ply: surfaces; .xyz: points) would drop them or fail after the work is done.
+VOLUME_MESH_FORMATS = (".vtu", ".vtk", ".msh", ".mesh", ".meshb", ".xdmf", ".xmf", ".med", ".inp")
+
+
+def check_mesh_format(path: str | os.PathLike) -> None:
+    """Raise MeshError unless ``path``'s extension names a format that holds tetrahedra."""
+    suffix = os.path.splitext(os.fspath(path))[1].lower()
+    if suffix not in VOLUME_MESH_FORMATS:
+        raise MeshError(f"{os.fspath(path)}: cannot write a tetrahedral mesh as {suffix or 'a file without an extension'} "
+                        f"(use one of {', '.join(VOLUME_MESH_FORMATS)})")
+
+
 class TetMesh(_VertexQueries):
     """A validated tetrahedral mesh in its rest configuration.
 
@@ -329,8 +342,11 @@ class TetMesh(_VertexQueries):
         return mesh
 
     def save(self, path: str | os.PathLike) -> None:
-        """Write the mesh with meshio (format from the extension), atomically."""
+        """Write the mesh with meshio (format from the extension, one of
+        :data:`VOLUME_MESH_FORMATS`), atomically."""
         import meshio
+
+        check_mesh_format(path)
 
         from .io import atomic_path
 

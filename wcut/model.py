@@ -74,6 +74,11 @@ def _vertex_indices(value, count: int, name: str) -> np.ndarray:
     return arr
 
 
+#: The largest gravity (m/s^2) a model takes: a centrifuge's 1e5 g. Beyond, float32 arithmetic
+#: overflows (1e300 becomes infinite) long before anything physical happens.
+MAX_GRAVITY = 1.0e6
+
+
 @dataclass
 class Attachments:
     """Attachment springs from points of the object to targets (targets live in Control).
@@ -496,6 +501,9 @@ class Model:
             raise ModelError(f"gravity: expected three numbers, got {gravity!r}") from None
         if gravity.shape != (3,) or not np.isfinite(gravity).all():
             raise ModelError(f"gravity: expected three finite components, got {gravity.tolist()}")
+        if np.abs(gravity).max() > MAX_GRAVITY:
+            raise ModelError(f"gravity: {gravity.tolist()} m/s^2 is beyond any load a simulation takes "
+                             f"(at most {MAX_GRAVITY:g} m/s^2 along each axis)")
         self.gravity = wp.vec3(*gravity)
 
         fixed_mask = np.zeros(N, dtype=np.int32)
@@ -802,10 +810,21 @@ class Model:
     def fixed_count(self) -> int:
         return int(self.particle_fixed.numpy().sum())
 
-    def state(self) -> State:
-        """A new State at rest: positions = rest positions, zero velocity and forces, identity rotations."""
+    def state(self, requires_grad: bool | None = None) -> State:
+        """A new State at rest: positions = rest positions, zero velocity and forces, identity
+        rotations. ``requires_grad`` (Newton's keyword) may be None or False: wcut's step is not
+        differentiated."""
+        _no_gradients("state", requires_grad)
         return State(self)
 
-    def control(self) -> Control:
-        """A new Control: attachment targets at the attached rest points."""
+    def control(self, requires_grad: bool | None = None, clone_variables: bool = True) -> Control:
+        """A new Control: attachment targets at the attached rest points (always new arrays;
+        Newton's ``clone_variables`` is accepted). ``requires_grad`` as for :meth:`state`."""
+        _no_gradients("control", requires_grad)
         return Control(self)
+
+
+def _no_gradients(what: str, requires_grad) -> None:
+    if requires_grad:
+        raise ModelError(f"{what}(requires_grad=True): wcut's step is not differentiable (no adjoint kernels); "
+                         "use requires_grad=None or False")

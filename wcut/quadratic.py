@@ -27,7 +27,7 @@ import scipy.sparse as sp
 
 from . import p2
 from .errors import MeshError
-from .mesh import TET_FACES, TetMesh, _VertexQueries, read_meshio, unused_vertex_notice
+from .mesh import TET_FACES, TetMesh, _VertexQueries, check_mesh_format, read_meshio, unused_vertex_notice
 
 #: Swapping corners 1 and 2 reorients an element; these are its ten nodes after the swap.
 _REORIENT = np.array([0, 2, 1, 3, 6, 5, 4, 7, 9, 8])
@@ -209,6 +209,8 @@ class QuadraticTetMesh(_VertexQueries):
         import meshio
 
         from .io import atomic_path
+
+        check_mesh_format(path)
 
         with atomic_path(path) as tmp:
             meshio.write(tmp, meshio.Mesh(self.vertices, [("tetra10", self.tets)]))

@@ -70,9 +70,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .blade import Blade, sample_count
 from .errors import SceneError, WcutError
 from .io import check_writable
 from .mesh import SHEET_PATTERNS
+from .model import MAX_GRAVITY
+from .rebuild import apply_change
 
 try:
     import tomllib
@@ -145,6 +148,10 @@ MAX_ITERATIONS = 10000
 MAX_SUBSTEPS = 10000
 #: the longest time step (s) a scene may take (its dt, or 1 / fps without one)
 MAX_STEP = 1.0
+#: the most frames a scene may ask for (duration * fps): a day at 30 fps is 2.6 million
+MAX_FRAMES = 10_000_000
+#: the most cells a mesh generator may make (five or six elements each)
+MAX_CELLS = 10_000_000
 
 # section -> key -> (checker, default); a default of None means "absent unless given"
 _SCHEMA = {
@@ -304,6 +311,13 @@ def _parse(raw: dict, path: Path) -> Scene:
     if solver["dt"] is not None and 1.0 / (sim["fps"] * solver["dt"]) > MAX_SUBSTEPS:
         raise SceneError(f"solver.dt: {solver['dt']} s gives more than {MAX_SUBSTEPS} steps per frame at "
                          f"simulation.fps = {sim['fps']}")
+    if sim["duration"] * sim["fps"] > MAX_FRAMES:
+        raise SceneError(f"simulation: duration {sim['duration']:g} s at fps {sim['fps']:g} is "
+                         f"{sim['duration'] * sim['fps']:.3g} frames; at most {MAX_FRAMES}")
+    gravity = np.asarray(sections["loads"]["gravity"], dtype=np.float64)
+    if not np.abs(gravity).max() <= MAX_GRAVITY:  # (the model checks it too: here before any work)
+        raise SceneError(f"loads.gravity: {gravity.tolist()} m/s^2 is beyond any load a simulation takes "
+                         f"(at most {MAX_GRAVITY:g} m/s^2 along each axis)")
     if out["stress_max"] is not None and out["stress_max"] <= 0:
         raise SceneError(f"output.stress_max: must be positive, got {out['stress_max']}")
     if out["up_axis"] not in ("Y", "Z"):
@@ -363,6 +377,9 @@ def _parse_mesh(mesh: dict, raw: dict) -> dict:
         raise SceneError(f"mesh.thickness: must be positive, got {mesh['thickness']}")
     if not sheet:  # the beam, or a file of either kind: the solid's rules, as they always were
         mesh["cells"] = _int3(raw["cells"], "mesh.cells") if "cells" in raw else [4, 4, 20]
+        if math.prod(mesh["cells"]) > MAX_CELLS:
+            raise SceneError(f"mesh.cells: {mesh['cells']} is {math.prod(mesh['cells']):.3g} cells; at most "
+                             f"{MAX_CELLS:g} (some {6 * MAX_CELLS:g} elements)")
         mesh["size"] = _vec3(raw["size"], "mesh.size") if "size" in raw else [0.04, 0.04, 0.2]
         if generator == "beam" and mesh["order"] is None:
             mesh["order"] = 1
@@ -386,6 +403,8 @@ def _parse_mesh(mesh: dict, raw: dict) -> dict:
     size = [_number(v, f"mesh.size[{i}]") for i, v in enumerate(size)]
     if min(cells) < 1:
         raise SceneError(f"mesh.cells: expected at least one cell along x and y, got {cells}")
+    if math.prod(cells) > MAX_CELLS:
+        raise SceneError(f"mesh.cells: {cells} is {math.prod(cells):.3g} cells; at most {MAX_CELLS:g}")
     if min(size) <= 0:
         raise SceneError(f"mesh.size: must be positive, got {size}")
     if generator == "l_shape_sheet" and (cells[0] != cells[1] or cells[0] % 2):
@@ -659,14 +678,10 @@ class Simulation:
                                   rotation_stiffness=s["rotation_stiffness"], cpu_threads=s["cpu_threads"])
 
     def rebuild(self, mesh, change) -> None:
-        """Carry the model, state and control over ``change`` (which led to ``mesh``)."""
-        targets = self.control.attachment_target.numpy()
+        """Carry the model, states, control and solver over ``change`` (which led to ``mesh``)."""
         self.changes.append((mesh, change))
-        self.model, self.state = self.model.rebuild(mesh, change, self.state, in_place=True)  # old ones dropped
-        self._next, self.control = self.model.state(), self.model.control()
-        self._next.particle_f.assign(self.state.particle_f)
-        self.control.attachment_target.assign(targets)
-        self.solver = self.solver.rebuilt(self.model, change)
+        self.model, self.solver, (self.state, self._next), self.control = apply_change(
+            mesh, change, self.model, self.solver, (self.state, self._next), self.control)
 
     def advance(self) -> bool:
         """Simulate one frame; True when the mesh changed (a cut or a crack)."""
@@ -690,7 +705,7 @@ class Simulation:
         self.solver.check()
         self.frame += 1
         start = time.perf_counter()
-        change = self.blade.cut(self.frame, self.state) if self.blade else None
+        change = self.blade.cut_frame(self.frame, self.state) if self.blade else None
         if change is not None:
             self.cut_events += 1
             self.rebuild(self.blade.mesh(), change)
@@ -779,86 +794,26 @@ def render_surface(mesh, subdivision: int = 2):
     return SurfaceTessellation.of_linear(mesh)
 
 
-class _Blade:
-    """The scene's blade: cuts the object where it swept since the last frame.
-
-    The blade is a segment in the world; the material it cuts between two frames is what it
-    met on the way, which a moving body keeps changing. Each frame, points along the blade are
-    mapped from the current configuration to the rest configuration
-    (:meth:`~wcut.topology.TetTopology.rest_points`, thesis 3.2), and the cut is the strip
-    between the blade mapped last frame and the blade mapped now: consecutive strips share
-    their edges in the material, so the wound has no gaps however the body moves. The cuts
-    are progressive (see :meth:`wcut.cut.Cutter.cut`): an element opens once the blade has
-    passed through it."""
+class _Blade(Blade):
+    """The scene's blade: a :class:`wcut.Blade` moved along the scene's path, one position per
+    frame from the cut's first frame."""
 
     def __init__(self, cut: dict, mesh):
-        from .cut import Cutter, SweptBlade
-        from .cut.quadratic import QuadraticCutter
-        from .topology import TetTopology
+        from .cut import SweptBlade
 
+        super().__init__(mesh, method=cut["method"], epsilon=cut["epsilon"])
         self.first = cut["frames"][0]
         self.sweep = SweptBlade(blade_path(cut))
-        if getattr(mesh, "order", 1) == 2:  # the corners are cut, the nodes placed after
-            self.quadratic, self._linear = QuadraticCutter(mesh, method=cut["method"], epsilon=cut["epsilon"]), None
-        else:
-            self.quadratic, self._linear = None, Cutter(TetTopology(mesh), method=cut["method"],
-                                                        epsilon=cut["epsilon"])
-        #: increments a quadratic cut refused (an element would fold): they are cut again with the next
-        self.refused = 0
         length = float(np.linalg.norm(self.sweep.blade[:, 1] - self.sweep.blade[:, 0], axis=1).max())
-        # a sample every half edge: the mapped blade follows the body's bending
-        self.sample_count = int(np.clip(np.ceil(2.0 * length / self.cutter.mean_edge_length), 2, 64)) + 1
-        self._mapped = None  # the blade of the last frame, in the rest configuration
-        #: the surface (rest configuration) the blade swept in the last call of :meth:`cut`, or None
-        self.last_increment = None
+        self.samples = sample_count(length, self.cutter.mean_edge_length)
 
-    def cut(self, frame: int, state):
+    def cut_frame(self, frame: int, state):
         """The TopologyChange of this frame's cut, or None when nothing changed."""
-        from .cut.surface import strip
-
-        self.last_increment = None
         k = frame - self.first
         if not 0 <= k < self.sweep.frame_count:
+            self.last_increment = None
             return None
-        if self.quadratic is not None:
-            self.quadratic.set_state(state.particle_q.numpy(), state.particle_qd.numpy())
-        else:
-            n = self.topology.vertex_count
-            self.topology.positions[:] = state.particle_q.numpy()[:n]
-            self.topology.velocities[:] = state.particle_qd.numpy()[:n]
-        before = self._mapped
-        self._mapped = self.topology.rest_points(self.sweep.samples(k, self.sample_count))
-        if before is None:
-            return None
-        increment = strip(before, self._mapped)
-        if increment is None:
-            return None
-        self.last_increment = increment
-        if self.quadratic is None:
-            change = self.cutter.cut(increment, progressive=True, rest=True).change
-        else:
-            from .cut import CutError
-
-            try:
-                change = self.quadratic.cut(increment, progressive=True, rest=True).change
-            except CutError:
-                self.refused += 1
-                return None
-        return None if change.is_empty else change
-
-    @property
-    def cutter(self):
-        """The corner mesh's :class:`~wcut.cut.Cutter`."""
-        return self.quadratic.cutter if self.quadratic is not None else self._linear
-
-    @property
-    def topology(self):
-        """The corner mesh being cut."""
-        return self.cutter.topology
-
-    def mesh(self):
-        """The mesh after the last cut."""
-        return self.quadratic.mesh if self.quadratic is not None else self.topology.to_mesh()
+        return self.cut(state, *self.sweep.blade[k])
 
 
 class _NoBar:

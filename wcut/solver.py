@@ -48,6 +48,7 @@ steps: a NaN or infinite value, or a vertex faster than anything the loads can s
 
 from __future__ import annotations
 
+import numbers
 from collections import deque
 
 import numpy as np
@@ -403,9 +404,13 @@ class SolverCorotational:
             if target.shape[0] != m.attachment_count or target.device != m.device:
                 raise SimulationError("control does not belong to this model (made by another model's control()?)")
 
-    def step(self, state_in: State, state_out: State, control: Control | None, dt: float) -> None:
+    def step(self, state_in: State, state_out: State, control: Control | None, contacts=None,
+             dt: float | None = None) -> None:
         """Advance by ``dt`` seconds from ``state_in`` to ``state_out`` (they may be the same).
 
+        Called as ``step(state_in, state_out, control, dt)`` or, as Newton's solvers are,
+        ``step(state_in, state_out, control, contacts, dt)`` with ``contacts`` None (wcut
+        handles no contacts). ``dt`` may be any real number type (a NumPy scalar too).
         ``control`` may be None when the model has no attachments. External forces are read
         from ``state_in.particle_f``.
 
@@ -418,6 +423,11 @@ class SolverCorotational:
         split over threads runs outside the graph (before it, for the element pass); with
         the product split too, nothing is captured.
         """
+        if dt is None:  # step(state_in, state_out, control, dt)
+            contacts, dt = None, contacts
+        if contacts is not None:
+            raise SimulationError("step: wcut handles no contacts; pass contacts=None")
+        dt = _seconds(dt)
         self._check(state_in, state_out, control, dt)
         m = self.model
         if self._start_speed is None:  # what the divergence check allows for initial velocities
@@ -564,6 +574,14 @@ class SolverCorotational:
             raise SimulationError(f"the simulation diverged in {when} (t = {self.elapsed:.4g} s): a vertex moved at "
                                   f"{speed:.3g} m/s, beyond the {limit:.3g} m/s the loads and the material's wave "
                                   f"speed allow")
+
+
+def _seconds(dt) -> float:
+    """A time step (s) as a float: any real number (a NumPy scalar, a 0-d array), not a bool."""
+    if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, (numbers.Real, np.ndarray)) \
+            or (isinstance(dt, np.ndarray) and (dt.shape != () or dt.dtype.kind not in "iuf")):
+        raise SimulationError(f"time step must be a positive finite number of seconds, got {dt!r}")
+    return float(dt)
 
 
 def _wave_speed(model: Model) -> float:

@@ -204,6 +204,7 @@ def synthesize(path, directory, *, frames: int | None = None, progress: bool | N
     if frames < 1:
         raise SceneError(f"frames must be at least 1, got {frames}")
     directory = Path(directory)
+    _check_replaceable(directory)
     model_mesh = build_mesh(dataclasses.replace(scene, mesh=synth["model"]))
     if getattr(model_mesh, "order", 1) != 1 or not hasattr(model_mesh, "tets"):
         raise SceneError(f"{scene.path.name}: synth.model: the registered model must be a linear tetrahedral mesh")
@@ -285,6 +286,22 @@ def synthesize(path, directory, *, frames: int | None = None, progress: bool | N
         if work.exists():
             shutil.rmtree(work, ignore_errors=True)
     return SynthResult(directory, frames + 1, cut_frames, int(sim.model.tet_count), int(model_mesh.tet_count))
+
+
+#: What a capture directory holds: a non-empty directory without them is the user's, and is
+#: not replaced.
+CAPTURE_FILES = ("camera.json", "truth")
+
+
+def _check_replaceable(directory: Path) -> None:
+    """Refuse, before any work, an output that is a file or a non-empty directory that is not
+    a capture (replacing it would delete the user's files)."""
+    if directory.exists() and not directory.is_dir():
+        raise CaptureError(f"{directory}: is a file, not a capture directory")
+    if directory.is_dir() and any(directory.iterdir()) \
+            and not all((directory / name).exists() for name in CAPTURE_FILES):
+        raise CaptureError(f"{directory}: a directory with other files than a capture; give a new or empty "
+                           "directory (wcut synth replaces the one it writes)")
 
 
 def _imwrite(path: Path, image: np.ndarray) -> None:

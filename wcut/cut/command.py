@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from ..io import atomic_path, check_writable
-from ..mesh import dihedral_angles
+from ..mesh import check_mesh_format, dihedral_angles
 from ..quadratic import load_mesh
 from ..topology import TetTopology
 from .cutter import CutError, Cutter
@@ -87,14 +87,18 @@ def run_cut(mesh_in, mesh_out, *, plane: str | None = None, surface: str | None 
         raise CutError("give exactly one cut surface: --plane px,py,pz,nx,ny,nz or --surface TRIS.obj")
     if order not in (1, 2):
         raise CutError(f"--order {order}: expected 1 (linear) or 2 (quadratic)")
+    check_mesh_format(mesh_out)
     check_writable(mesh_out)
     if report_path is not None:
         check_writable(report_path)
     cut_surface = parse_plane(plane) if plane is not None else TriangleSurface.load(surface)
     mesh = load_mesh(mesh_in, order)
     after, report = cut_mesh(mesh, cut_surface, method=method, epsilon=epsilon)
-    after.save(mesh_out)
-    if report_path is not None:
-        with atomic_path(report_path) as tmp, open(tmp, "w") as f:
+    if report_path is None:
+        after.save(mesh_out)
+        return report
+    with atomic_path(report_path) as tmp:  # renamed after the mesh is written: both or neither
+        with open(tmp, "w") as f:
             json.dump(report, f, indent=2)
+        after.save(mesh_out)
     return report

@@ -191,10 +191,11 @@ class Plane(CutSurface):
     def __init__(self, point, normal):
         self.point = _array(point, (3,), "plane point")
         normal = _array(normal, (3,), "plane normal")
-        length = np.linalg.norm(normal)
-        if not length > 0.0:
+        largest = np.abs(normal).max()
+        if not largest > 0.0:
             raise SurfaceError("plane normal is the zero vector")
-        self.normal = normal / length
+        normal = normal / largest  # first: the length of (1e308, 0, 0) would overflow
+        self.normal = normal / np.linalg.norm(normal)
 
     def signed_distance(self, points) -> np.ndarray:
         """Signed distance (M,) (m) of points (M, 3): positive on the side the normal points to."""
