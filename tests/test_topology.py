@@ -1176,3 +1176,11 @@ def _containing_everywhere(topo: TetTopology, removed, added) -> list[int]:
                 best, best_min = i, smallest
         parents.append(removed[best])
     return parents
+
+
+def test_a_topology_refuses_positions_of_another_mesh():
+    mesh = beam(2, 1, 1)
+    with pytest.raises(TopologyError, match=r"positions must have shape \(12, 3\).*another mesh"):
+        TetTopology(mesh, positions=np.zeros((20, 3)))
+    with pytest.raises(TopologyError, match="velocities are not all finite"):
+        TetTopology(mesh, velocities=np.full((12, 3), np.nan))

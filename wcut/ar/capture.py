@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import CaptureError, WcutError
 from ..mesh import TetMesh
+from ..solver import DEFAULT_CG_ITERATIONS, DEFAULT_CG_TOLERANCE
 from .camera import Camera
 from .detection import MEASURES
 from .features import DETECTORS
@@ -52,8 +53,9 @@ PARAMS_SCHEMA = {
                 "plane_depth": (float, 0.0, -1e-300, "m; 0: the depth of the model's centre")},
     "springs": {"stiffness": (float, 1.0, 0.0, "N/m per feature"),
                 "margin": (float, 0.0, -1e-300, "m; 0: the detection's cut_point_radius")},
-    "solver": {"substeps": (int, 1, 0, "implicit steps per frame"), "cg_iterations": (int, 30, 0, "1"),
-               "cg_tolerance": (float, 1.0e-6, -1e-300, "1"),
+    "solver": {"substeps": (int, 1, 0, "implicit steps per frame"),
+               "cg_iterations": (int, DEFAULT_CG_ITERATIONS, 0, "1; the cap, a safety net (wcut.solver)"),
+               "cg_tolerance": (float, DEFAULT_CG_TOLERANCE, -1e-300, "1; relative residual (wcut.solver)"),
                "rotation_stiffness": (bool, True, None, "the tangent's rotation term (wcut.solver)")},
     "detection": {"radius": (float, 0.0, -1e-300, "m; 0: 2.5 times the mean feature spacing"),
                   "cut_point_radius": (float, 0.0, -1e-300, "m; 0: the model's mean edge length"),

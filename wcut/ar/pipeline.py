@@ -242,8 +242,8 @@ class ArTracker:
         reach = np.abs(x - self._rest_centre).max()
         if not reach <= BOUNDED_REACH * self._rest_size:
             raise SimulationError(f"the model diverged: a vertex is {reach:.3g} m from its rest centre (rest size "
-                                  f"{self._rest_size:.3g} m); try more solver.substeps or cg_iterations, or stiffer "
-                                  f"springs")
+                                  f"{self._rest_size:.3g} m); try stiffer springs, other detection settings "
+                                  f"or solver.substeps = 2")
 
     def _set_pulling(self, pulling: np.ndarray) -> None:
         self.pulling = pulling

@@ -158,9 +158,9 @@ class TetTopology:
         n = mesh.vertex_count
         data = np.zeros((max(2 * n, 16), 9))
         data[:n, REST] = mesh.vertices
-        data[:n, POSITION] = mesh.vertices if positions is None else np.asarray(positions, float)
+        data[:n, POSITION] = mesh.vertices if positions is None else _per_vertex(positions, n, "positions", mesh)
         if velocities is not None:
-            data[:n, VELOCITY] = np.asarray(velocities, float)
+            data[:n, VELOCITY] = _per_vertex(velocities, n, "velocities", mesh)
         self.vertex_data = data
         self.vertex_count = n
         self.sync_rest_tuples()
@@ -759,6 +759,17 @@ class _NumberedRows:
 
     def __iter__(self):
         return enumerate(self.tets.tolist())
+
+
+def _per_vertex(values, count: int, what: str, mesh) -> np.ndarray:
+    """``values`` as finite (count, 3) float64, or a TopologyError that says whose they may be."""
+    values = np.asarray(values, dtype=float)
+    if values.shape != (count, 3):
+        raise TopologyError(f"TetTopology of {mesh.name}: {what} must have shape ({count}, 3), one row per vertex, "
+                            f"got {values.shape} (a state of another mesh, e.g. of the model after a cut?)")
+    if not np.isfinite(values).all():
+        raise TopologyError(f"TetTopology of {mesh.name}: {what} are not all finite")
+    return values
 
 
 def _enter_faces(face_tets: dict, slot_face_keys: list, t: int, tet: list[int], containing: int = -1) -> None:
