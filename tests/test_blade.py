@@ -118,3 +118,8 @@ def test_the_blade_refuses_bad_positions_and_stale_states():
         blade.cut(small.state(), [0.04, -0.01, 0.05], [0.04, 0.05, 0.05])
     with pytest.raises(CutError, match="samples"):
         wcut.Blade(mesh, samples=1)
+    state = model.state()
+    assert blade.cut(state, [0.041, -0.01, 0.05], [0.041, 0.05, 0.05]) is None  # placed
+    blade.lift()
+    assert blade.cut(state, [0.041, -0.01, -0.01], [0.041, 0.05, -0.01]) is None  # placed again: no stroke
+    assert blade.cut(state, [0.041, -0.01, 0.05], [0.041, 0.05, 0.05]) is not None  # through the beam

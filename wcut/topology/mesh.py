@@ -39,7 +39,7 @@ import struct
 import numpy as np
 
 from ..errors import WcutError
-from ..mesh import TET_FACES, TetMesh
+from ..mesh import TET_FACES, TetMesh, unique_rows
 
 #: Columns of ``vertex_data``.
 REST, POSITION, VELOCITY = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -412,15 +412,7 @@ class TetTopology:
 
     def _rest_points_outside(self, p: np.ndarray, slots: np.ndarray) -> np.ndarray:
         """:meth:`rest_points` of points outside the mesh, by the boundary faces of ``slots``."""
-        faces, owners = [], []
-        for t in slots.tolist():
-            tet = self.tets[t]
-            for local in TET_FACES:
-                tri = tet[local]
-                if self.face_owner_count(*tri.tolist()) == 1:
-                    faces.append(tri)
-                    owners.append(t)
-        faces = np.array(faces, dtype=np.int64).reshape(-1, 3)
+        faces, owners = self._boundary_faces_of(slots)
         x, rest = self.positions, self.rest_positions
         a, b, c = (np.broadcast_to(x[faces[:, k]], (len(p), len(faces), 3)) for k in range(3))
         bary, gap = _closest_on_triangles(np.broadcast_to(p[:, None], a.shape), a, b, c)
@@ -433,6 +425,19 @@ class TetTopology:
         inverse_gradient = initial @ np.linalg.inv(current)  # F^-1 of the element owning the face
         q = np.einsum("pk,pkj->pj", weights, x[face])
         return np.einsum("pk,pkj->pj", weights, rest[face]) + np.einsum("pij,pj->pi", inverse_gradient, p - q)
+
+    def _boundary_faces_of(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The boundary faces (F, 3) among the faces of elements ``slots``, and their elements.
+        A face two of ``slots`` share is inside; only the others are looked up in the vertex
+        stars (:meth:`face_owner_count`), the mesh's boundary and the region's rim."""
+        tris = self.tets[slots][:, TET_FACES].reshape(-1, 3)  # (4M, 3), outward as TET_FACES
+        owners = np.repeat(slots, 4)
+        keys = np.sort(tris, axis=1)
+        base = int(keys.max(initial=0)) + 1
+        _, inverse, counts = unique_rows(keys, base, return_inverse=True, return_counts=True)
+        alone = np.flatnonzero(counts[inverse.ravel()] == 1)
+        boundary = [i for i in alone.tolist() if self.face_owner_count(*keys[i].tolist()) == 1]
+        return tris[boundary].reshape(-1, 3), owners[boundary]
 
     def to_mesh(self, name: str | None = None) -> TetMesh:
         """The live elements as a :class:`TetMesh` (elements in slot order, vertices as
