@@ -137,6 +137,13 @@ class _OrderedFactor:
         return x
 
 
+#: Relative residual at which :meth:`ScipyCorotationalStep.static_equilibrium` ends an
+#: intermediate load increment (only the whole load needs the final tolerance).
+INCREMENT_TOLERANCE = 1e-3
+#: The smallest load increment (a fraction of the load) static equilibrium tries.
+SMALLEST_INCREMENT = 1.0 / 4096
+
+
 class ScipyCorotationalStep:
     """One implicit step of corotational linear FEM, assembled with scipy.sparse.
 
@@ -541,12 +548,15 @@ class ScipyCorotationalStep:
     def static_equilibrium(self, f_ext=None, *, load_steps: int = 1, tolerance: float = 1e-7,
                            max_iterations: int = 60) -> np.ndarray:
         """Positions (N, 3) in m where the corotational elastic forces balance gravity and
-        ``f_ext``: Newton's method with direct solves (``spsolve``) on the free degrees of
-        freedom, the load applied in ``load_steps`` equal increments (more for large deflections), each
-        solved until the residual force is below ``tolerance`` times the load. The tangent is
-        ``sum R K R^T`` plus the projected rotation stiffness, factored again only when an
-        iteration reduces the residual by less than a factor 4 (modified Newton). Raises :class:`SimulationError` when an
-        increment does not converge."""
+        ``f_ext``: Newton's method with direct solves on the free degrees of freedom, the load
+        applied in increments (continuation): the first is ``1 / load_steps`` of it; an
+        increment that does not converge is undone and retried at a quarter of its size, one
+        that converges quickly doubles the next. Intermediate increments stop at a relative
+        residual of :data:`INCREMENT_TOLERANCE`, the whole load at ``tolerance`` times the
+        load. The tangent is ``sum R K R^T`` plus the projected rotation stiffness, factored
+        again only when an iteration reduces the residual by less than a factor 4 (modified
+        Newton). Raises :class:`SimulationError` when the increments become smaller than
+        :data:`SMALLEST_INCREMENT` of the load."""
         load = self.masses[:, None] * self.gravity[None, :]
         if f_ext is not None:
             load = load + _finite_array(f_ext, "f_ext", (self.n_vertices, 3))
@@ -558,25 +568,34 @@ class ScipyCorotationalStep:
         tangent = ScipyCorotationalStep.__new__(ScipyCorotationalStep)
         tangent.__dict__.update(self.__dict__)
         tangent.rotation_stiffness = True
-        factor, last = None, np.inf
-        for step in range(1, load_steps + 1):
-            target = load * (step / load_steps)
-            for _ in range(max_iterations):
+        fraction, step = 0.0, 1.0 / load_steps
+        while fraction < 1.0:
+            goal = min(1.0, fraction + step)
+            limit = (tolerance if goal == 1.0 else INCREMENT_TOLERANCE) * scale
+            start, factor, last, growing = x.copy(), None, np.inf, 0
+            for iteration in range(max_iterations):
                 R = self._rotations(x)
-                residual = (self._internal_forces(x, R) + target).reshape(-1)[free]
+                residual = (self._internal_forces(x, R) + goal * load).reshape(-1)[free]
                 size = np.abs(residual).max()
-                if size <= tolerance * scale:
+                if size <= limit or not np.isfinite(size):
+                    break
+                growing = growing + 1 if size > last else 0
+                if growing >= 3:  # diverging: a smaller increment
                     break
                 if factor is None or size > 0.25 * last:  # (modified Newton: refactor when it slows)
-                    K = tangent._stiffness_matrix(x, R)[free][:, free].tocsc()
-                    factor = _symmetric_factor(K)
+                    factor = _symmetric_factor(tangent._stiffness_matrix(x, R)[free][:, free].tocsc())
                 last = size
                 dx = np.zeros(3 * self.n_vertices)
                 dx[free] = factor.solve(residual)
                 x = x + dx.reshape(-1, 3)
-            else:
-                raise SimulationError(f"static equilibrium: load increment {step} of {load_steps} did not converge "
-                                      f"in {max_iterations} Newton iterations")
+            if size <= limit:
+                fraction = goal
+                step = 2.0 * step if iteration < 6 else step
+                continue
+            x, step = start, 0.25 * step
+            if step < SMALLEST_INCREMENT:
+                raise SimulationError(f"static equilibrium: at {100 * fraction:.3g}% of the load, no increment down "
+                                      f"to {SMALLEST_INCREMENT:g} of it converged in {max_iterations} Newton iterations")
         return x
 
     def step(
