@@ -37,8 +37,8 @@ tolerance``, the rule of ``wcut.topology.operators._check``. It then ends with
 
 The module is compiled without adjoints (``enable_backward`` off): its integer bookkeeping
 has no gradient, and the adjoints of these long sequential kernels multiplied the compile
-time: 15.4 to 7.8 s on the CPU, 419 to 26-29 s for CUDA (PTX for sm_90 by NVRTC, measured
-2026-11-22 with ``tools/cuda_compile.py``).
+time: 15.4 to 7.8 s on the CPU, 419 to 26-29 s for CUDA (PTX for sm_90 by NVRTC,
+``tools/cuda_compile.py``).
 """
 
 import warp as wp
