@@ -11,19 +11,39 @@ simulation over the change; :class:`Cutter` makes single cuts of a :class:`TetTo
 
 __version__ = "0.1.0"
 
-from .blade import Blade
-from .cut import Cutter, Plane, TriangleSurface
+import importlib
+import importlib.util
+
 from .errors import (CaptureError, ExportError, FractureError, MeshError, ModelError, SceneError, SimulationError,
                      WcutError)
-from .fracture import ShellFracture
 from .mesh import ShellMesh, TetMesh, beam, l_shape_sheet, precut_sheet, rectangle_sheet
-from .model import Control, Model, State
-from .quadratic import QuadraticTetMesh, load_mesh, to_quadratic
-from .rebuild import apply_change
-from .scene import load_scene, run_scene
-from .solver import SolverCorotational
-from .topology import TetTopology, TopologyChange
-from .usd import UsdAnimationWriter
+
+#: the rest of the API, imported when first used: ``import wcut`` stays quick (the command
+#: line's ``--version``), the solver, cutter and USD modules load with their first use
+_LAZY = {
+    "Model": ".model", "State": ".model", "Control": ".model", "SolverCorotational": ".solver",
+    "QuadraticTetMesh": ".quadratic", "load_mesh": ".quadratic", "to_quadratic": ".quadratic",
+    "Blade": ".blade", "apply_change": ".rebuild", "Cutter": ".cut", "Plane": ".cut", "TriangleSurface": ".cut",
+    "TetTopology": ".topology", "TopologyChange": ".topology", "ShellFracture": ".fracture",
+    "UsdAnimationWriter": ".usd", "load_scene": ".scene", "run_scene": ".scene",
+}
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is not None:
+        value = getattr(importlib.import_module(module, __name__), name)
+    elif importlib.util.find_spec(f"{__name__}.{name}") is not None:  # a submodule: wcut.model, ...
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module 'wcut' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "__version__",
