@@ -82,6 +82,8 @@ ACCURACY_MODULI = (1.0e5, 1.0e6, 1.0e7)
 ACCURACY_DT = 1.0 / 60.0
 ACCURACY_DAMPING = 1.0
 ACCURACY_MAX_TIME = 30.0
+#: relative residual of the static reference solve (see static_tip_deflection)
+STATIC_TOLERANCE = 1e-5
 SETTLED_STEPS = 30
 #: steps of the Jacobi-preconditioned CG run beside each (to the same tolerance)
 JACOBI_STEPS = 20
@@ -159,7 +161,10 @@ def static_tip_deflection(mesh, fixed, youngs_modulus: float, tip: int) -> np.nd
 
     ref = ScipyCorotationalStep(mesh.vertices, mesh.tets, density=1000.0, youngs_modulus=youngs_modulus,
                                 poisson_ratio=0.3, gravity=(0.0, -9.81, 0.0), fixed=fixed)
-    return ref.static_equilibrium()[tip] - mesh.vertices[tip]
+    # a residual of 1e-5 of the load puts the tip far inside the 1% the benchmark asks for; the
+    # tangent's projected rotation term makes Newton's method converge only linearly when the
+    # beam hangs at large angles (0.1 MPa), where each further decade costs minutes
+    return ref.static_equilibrium(tolerance=STATIC_TOLERANCE)[tip] - mesh.vertices[tip]
 
 
 def _settle(model, solver, tip: int, static: np.ndarray, max_steps: int) -> dict:
