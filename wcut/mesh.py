@@ -158,8 +158,16 @@ def read_meshio(path: str | os.PathLike):
         raise MeshError(f"{path}: cannot read mesh: {detail}") from None
 
 
-def unused_vertex_notice(name: str, unused: np.ndarray) -> None:
-    """Say in one line (a :class:`~wcut.errors.MeshNotice`) that vertices no cell uses are dropped."""
+def notice_unused_vertices(name: str, data) -> None:
+    """Say in one line (a :class:`~wcut.errors.MeshNotice`) that the vertices of ``data`` (a
+    ``meshio.Mesh``) that no cell uses are dropped, if there are any."""
+    in_any_cell = np.zeros(len(data.points), dtype=bool)
+    for block in data.cells:
+        ids = np.asarray(block.data, dtype=np.int64).ravel()
+        in_any_cell[ids[(ids >= 0) & (ids < len(in_any_cell))]] = True
+    unused = np.flatnonzero(~in_any_cell)
+    if not len(unused):
+        return
     first = ", ".join(str(int(i)) for i in unused[:5]) + (", ..." if len(unused) > 5 else "")
     warnings.warn(f"{name}: {len(unused)} vertices no cell uses are dropped (file indices {first})",
                   MeshNotice, stacklevel=3)
@@ -324,13 +332,7 @@ class TetMesh(_VertexQueries):
         name = os.path.basename(path)
         if tets.min() < 0 or tets.max() >= len(points):
             raise MeshError(f"{name}: element index out of range (vertex count {len(points)})")
-        in_any_cell = np.zeros(len(points), dtype=bool)
-        for block in data.cells:
-            ids = np.asarray(block.data, dtype=np.int64).ravel()
-            in_any_cell[ids[(ids >= 0) & (ids < len(points))]] = True
-        unused = np.flatnonzero(~in_any_cell)
-        if len(unused):
-            unused_vertex_notice(name, unused)
+        notice_unused_vertices(name, data)
         used = np.unique(tets)
         source_ids = None
         if len(used) < len(points):  # vertices of no cell or of surface or line cells only: not part of the solid

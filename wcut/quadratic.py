@@ -27,7 +27,7 @@ import scipy.sparse as sp
 
 from . import p2
 from .errors import MeshError
-from .mesh import TET_FACES, TetMesh, _VertexQueries, check_mesh_format, read_meshio, unused_vertex_notice
+from .mesh import TET_FACES, TetMesh, _VertexQueries, check_mesh_format, notice_unused_vertices, read_meshio
 
 #: Swapping corners 1 and 2 reorients an element; these are its ten nodes after the swap.
 _REORIENT = np.array([0, 2, 1, 3, 6, 5, 4, 7, 9, 8])
@@ -192,12 +192,7 @@ class QuadraticTetMesh(_VertexQueries):
         if tets.min() < 0 or tets.max() >= len(points):
             raise MeshError(f"{name}: element index out of range (node count {len(points)})")
         used = np.unique(tets)
-        in_any_cell = np.zeros(len(points), dtype=bool)
-        for block in data.cells:
-            ids = np.asarray(block.data, dtype=np.int64).ravel()
-            in_any_cell[ids[(ids >= 0) & (ids < len(points))]] = True
-        if not in_any_cell.all():
-            unused_vertex_notice(name, np.flatnonzero(~in_any_cell))
+        notice_unused_vertices(name, data)
         remap = np.full(len(points), -1, dtype=np.int64)
         remap[used] = np.arange(len(used))
         mesh = cls(points[used], remap[tets], name=name)

@@ -1005,11 +1005,7 @@ class Cutter:
         tets = topo.tets[slots]
         d = plane.signed_distance(self.coordinates()[tets].reshape(-1, 3)).reshape(-1, 4)
         sides = element_sides(d, self.in_plane * self.mean_edge_length)
-        low = np.zeros(topo.vertex_count, dtype=np.int64)
-        high = np.zeros(topo.vertex_count, dtype=np.int64)
-        np.minimum.at(low, tets.ravel(), np.repeat(sides, 4))
-        np.maximum.at(high, tets.ravel(), np.repeat(sides, 4))
-        if not ((low < 0) & (high > 0)).any():
+        if not len(_on_both_sides(tets, sides, topo.vertex_count)):
             return
         side_of = dict(zip(slots.tolist(), sides.tolist()))
         stack = [t for t, s in side_of.items() if s]
@@ -1023,10 +1019,7 @@ class Cutter:
                         side_of[n] = side_of[t]
                         stack.append(n)
         sides = np.array([side_of[t] for t in slots.tolist()])
-        low[:], high[:] = 0, 0
-        np.minimum.at(low, tets.ravel(), np.repeat(sides, 4))
-        np.maximum.at(high, tets.ravel(), np.repeat(sides, 4))
-        joined = np.flatnonzero((low < 0) & (high > 0)).tolist()
+        joined = _on_both_sides(tets, sides, topo.vertex_count).tolist()
         for v in joined:
             for t in topo.vertex_tets[v]:
                 for key in topo.slot_face_keys[t]:
@@ -1082,6 +1075,15 @@ class Cutter:
         topo.replace_tets(sorted(doomed), [])
         stats.deleted_elements = len(doomed)
         topo.drop_unused_vertices()
+
+
+def _on_both_sides(tets: np.ndarray, sides: np.ndarray, vertex_count: int) -> np.ndarray:
+    """Vertices with elements of ``tets`` on both sides (``sides`` +1 / -1 / 0 per element)."""
+    low = np.zeros(vertex_count, dtype=np.int64)
+    high = np.zeros(vertex_count, dtype=np.int64)
+    np.minimum.at(low, tets.ravel(), np.repeat(sides, 4))
+    np.maximum.at(high, tets.ravel(), np.repeat(sides, 4))
+    return np.flatnonzero((low < 0) & (high > 0))
 
 
 class _TopologyFaces:
