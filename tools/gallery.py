@@ -6,21 +6,33 @@ Runs three shipped scenes and pictures their last frame with :func:`wcut.picture
 
 - ``organ_cut.png``: the organ opened by the scalpel, seen from above (``scenes/organ_cut.toml``);
 - ``beam_cut.png``: the beam of thesis figure 5.10 cut in two halves (``scenes/beam_cut.toml``);
-- ``sheet_crack.png``: the crack across the precut sheet (``scenes/precut_sheet.toml``).
+- ``sheet_crack.png``: the crack across the precut sheet (``scenes/precut_sheet.toml``);
+
+and two results:
+
+- ``ar_overlay.png``: the last frame of ``wcut ar`` on the synthetic capture of
+  ``scenes/ar/band_cut_side.toml`` (thesis 7.8.2): the registered model's outline in green,
+  its internal structures filled, the tracked features as blue dots (a cut is drawn in red
+  in the frames where it is being detected);
+- ``cut_nodes.png``: thesis figure 5.11, nodes and condition number while a beam is cut step
+  by step, from ``tools/cut_conditioning.py`` (its docstring gives the experiment).
 
 Run::
 
     .venv/bin/python tools/gallery.py [--out tools/gallery] [--frames N] [--width 640]
     .venv/bin/python tools/gallery.py --scene SCENE.toml --png OUT.png   # one scene (tools/demo)
 
-``--frames`` stops each scene early and ``--width`` sets the picture width in pixels (the
-tests use small values).
+``--frames`` stops each scene, the AR video and the cut of figure 5.11 early (the latter
+then compares epsilon 0 and 0.2 only), and ``--width`` sets the picture width in pixels (the
+tests use small values). The whole gallery takes about a minute on two cores.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -71,6 +83,50 @@ def picture(scene_path: Path, shot, frames: int | None, width: int) -> np.ndarra
 DEFAULT_SHOT = (None, (0.3, -1.5, 0.8), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
 
 
+#: the synthetic capture of the AR overlay and the picture names of the two results
+AR_SCENE = ROOT / "scenes" / "ar" / "band_cut_side.toml"
+AR_PNG, NODES_PNG = "ar_overlay.png", "cut_nodes.png"
+
+
+def ar_overlay(scene: Path, frames: int | None, width: int) -> np.ndarray:
+    """The last overlay frame of ``wcut ar`` with cut handling on the capture ``wcut synth``
+    makes of ``scene``, scaled to ``width`` pixels, as an RGB image."""
+    import cv2
+
+    from wcut.ar.pipeline import run_ar
+    from wcut.ar.synth import synthesize
+
+    with tempfile.TemporaryDirectory() as work:
+        capture, video = Path(work) / "capture", Path(work) / "overlay.avi"
+        synthesize(scene, capture, frames=frames, progress=False)
+        run_ar(capture, Path(work) / "model.usdc", overlay=video, progress=False)
+        reader, last = cv2.VideoCapture(str(video)), None
+        while True:
+            ok, frame = reader.read()
+            if not ok:
+                break
+            last = frame
+        reader.release()
+    if last is None:
+        raise RuntimeError(f"{video.name}: no frame could be read back")
+    height = max(1, round(last.shape[0] * width / last.shape[1]))
+    return cv2.resize(last, (width, height), interpolation=cv2.INTER_AREA)[:, :, ::-1]
+
+
+def cut_nodes_plot(path: Path, frames: int | None) -> None:
+    """Thesis figure 5.11 from ``tools/cut_conditioning.py`` into ``path``."""
+    spec = importlib.util.spec_from_file_location("cut_conditioning", ROOT / "tools" / "cut_conditioning.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    with tempfile.TemporaryDirectory() as work:
+        argv = ["--out-dir", work, "--quiet"] + (["--quick", "--steps", str(frames)] if frames else [])
+        if tool.main(argv) != 0:
+            raise RuntimeError("tools/cut_conditioning.py failed (its messages are above)")
+        with atomic_path(path) as tmp:
+            Path(tmp).write_bytes((Path(work) / tool.PNG_NAME).read_bytes())
+    print(f"wrote {path}")
+
+
 def write_png(image: np.ndarray, path: Path) -> None:
     import cv2
 
@@ -95,6 +151,10 @@ def main(argv=None) -> int:
     for scene, shot in SHOTS.items():
         print(f"{scene} ...", file=sys.stderr, flush=True)
         write_png(picture(ROOT / "scenes" / scene, shot, args.frames, args.width), args.out / shot[0])
+    print(f"{AR_SCENE.name} (wcut synth, wcut ar) ...", file=sys.stderr, flush=True)
+    write_png(ar_overlay(AR_SCENE, args.frames, args.width), args.out / AR_PNG)
+    print("thesis figure 5.11 (tools/cut_conditioning.py) ...", file=sys.stderr, flush=True)
+    cut_nodes_plot(args.out / NODES_PNG, args.frames)
     return 0
 
 
