@@ -13,7 +13,7 @@ from conftest import load_tool
 from wcut.cut import METHODS, CutError, Cutter, Plane, Polygon, SweptBlade, TriangleSurface
 from wcut.cut.cutter import CRUMB_ELEMENTS, CRUMB_QUALITY, CRUMB_VOLUME, CURVED_HOLD, REGULAR_QUALITY
 from wcut.cut.surface import strip
-from wcut.cut.separation import plane_separation
+from wcut.cut.separation import element_sides, plane_separation
 from wcut.mesh import TetMesh, beam, perturbed
 from wcut.topology import TetTopology, check_topology, connected_components, tet_qualities
 
@@ -119,10 +119,15 @@ def test_crossing_cuts_make_four_pieces(cube):
         check_topology(topo, cube.volumes().sum())
     after = topo.to_mesh()
     labels = connected_components(after)
-    quadrant = (_sides(after, a) > 0) * 2 + (_sides(after, b) > 0)
+    # an element lying in a plane (every corner within the distance at which boundary
+    # vertices hold the cut) is on neither side of it and may stay with either
+    sides = [element_sides(p.signed_distance(after.vertices)[after.tets], cutter.in_plane * cutter.mean_edge_length)
+             for p in (a, b)]
+    quadrant = (sides[0] > 0) * 2 + (sides[1] > 0)
+    placed = (sides[0] != 0) & (sides[1] != 0)
     assert labels.max() == 3
     for q in range(4):
-        assert len(set(labels[quadrant == q])) == 1
+        assert len(set(labels[placed & (quadrant == q)])) == 1
 
 
 def test_partial_cut_with_a_polygon_opens_a_slit_but_keeps_one_piece(cube):
@@ -572,7 +577,7 @@ def _progressive_bent_cut(cells, x: float, tilt: float, steps: int, method: str,
 #: has no case here.
 CRUMBLY = {
     "paulus": ((8, 2, 2), 0.09340699793474433, -0.0001371322480458806, 4, "paulus", 0.0),
-    "bielser": ((8, 2, 2), 0.09066357757671799, 0.009179862439359938, 7, "bielser", 0.2),
+    "bielser": ((8, 2, 2), 0.10976847140711768, -0.005135690713873458, 3, "bielser", 0.0),
 }
 
 
@@ -650,7 +655,7 @@ def test_snapping_never_slides_one_lip_of_the_wound():
                  ((10, 3, 3), 0.05432154643063271, -0.00972530131091589, 13, "paulus", 0.0)):
         topo, cutter = _progressive_bent_cut(*case)
         wound, _ = _unmatched_wound_faces(topo)
-        assert wound > 50 and len(cutter.wound_vertices) > 20
+        assert wound > 40 and len(cutter.wound_vertices) > 20
         cells = case[0]
         check_topology(topo, beam(*cells, size=(0.16, 0.04, 0.04)).volumes().sum())
 
@@ -732,3 +737,30 @@ def test_a_face_across_the_inner_corner_of_a_fold_opens():
     mesh = topo.to_mesh()
     volumes = np.bincount(connected_components(mesh), weights=mesh.volumes())
     assert len(volumes) == 2 and volumes.min() > 0.3 * volumes.sum()
+
+
+def test_plane_cuts_of_a_curved_surface_leave_no_needle_at_the_boundary():
+    """Where a plane passes within the snapping distance of a boundary vertex that may not
+    move (the organ's surface is curved: a slide would change its volume), the cut bends
+    through the vertex instead of leaving a boundary edge of a few thousandths of an edge
+    length, whose elements are wedges of hundredths of a degree (measured on these planes
+    before the cut held: worst 0.06 degrees, 3e-8 of the median volume)."""
+    from wcut.mesh import dihedral_angles
+
+    organ = TetMesh.load(Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "organ.vtu")
+    volume, median = organ.volumes().sum(), np.median(organ.volumes())
+    rng = np.random.default_rng(0)
+    lo, hi = organ.vertices.min(axis=0), organ.vertices.max(axis=0)
+    for _ in range(4):
+        plane = Plane(lo + (hi - lo) * rng.uniform(0.25, 0.75, 3), rng.normal(size=3))
+        topo = TetTopology(organ)
+        cutter = Cutter(topo, epsilon=0.1)
+        cutter.cut(plane)
+        check_topology(topo, volume)
+        after = topo.to_mesh()
+        assert abs(after.volumes().sum() - volume) <= 1e-12 * volume
+        assert dihedral_angles(after.vertices, after.tets).min() > 1.0
+        assert after.volumes().min() > 1e-4 * median
+        separation = plane_separation(after.vertices, after.tets, plane, cutter.tolerance,
+                                      mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
+        assert separation.separated, separation.describe()
