@@ -764,3 +764,33 @@ def test_plane_cuts_of_a_curved_surface_leave_no_needle_at_the_boundary():
         separation = plane_separation(after.vertices, after.tets, plane, cutter.tolerance,
                                       mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
         assert separation.separated, separation.describe()
+
+
+#: elements a progressive cut may add per element of the uncut mesh its swept surface crosses
+#: (measured on bent beams cut in 4-60 increments: paulus 1.6-8.3, Bielser 6-15)
+ADDED_PER_CROSSED = 20
+
+
+@pytest.mark.parametrize("method, steps", [("paulus", 4), ("paulus", 60), ("bielser", 30)])
+def test_a_progressive_cut_adds_elements_in_proportion_to_what_it_crosses(method, steps):
+    """However many increments the blade takes through the deformed body, the elements it adds
+    stay within ADDED_PER_CROSSED per element of the uncut mesh the whole swept surface crosses
+    (no element is split again and again at a moving front)."""
+    cells = (10, 3, 3)
+    mesh = beam(*cells, size=(0.16, 0.04, 0.04))
+    topo, cutter = _progressive_bent_cut(cells, 0.0731, 0.004, steps, method, 0.1)
+    check_topology(topo, mesh.volumes().sum())
+    # the whole swept surface, mapped to the rest configuration as the increments were
+    blade = _down_blade(steps, 0.0731, 0.04, -0.04)
+    blade[:, 1, 0] += 0.004
+    sweep = SweptBlade(blade)
+    fresh = TetTopology(mesh, positions=_bent(mesh.vertices))
+    crossed: set[int] = set()
+    before = fresh.rest_points(sweep.samples(0, 9))
+    sampler = Cutter(fresh, method=method, epsilon=0.1)
+    for k in range(1, sweep.frame_count):
+        after = fresh.rest_points(sweep.samples(k, 9))
+        crossed |= set(sampler.sample(strip(before, after), np.arange(mesh.tet_count)).cut_slots)
+        before = after
+    assert len(crossed) > 40  # the blade goes through the beam
+    assert 0 < topo.tet_count - mesh.tet_count <= ADDED_PER_CROSSED * len(crossed)
