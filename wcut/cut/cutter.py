@@ -228,6 +228,10 @@ class Cutter:
         self.epsilon = float(epsilon)
         self.curved_boundary = bool(curved_boundary)
         self.compiled = bool(compiled)
+        #: the paulus insertion may flip (2-3 flips, general flips); False inserts by splits
+        #: only (1-4, face splits, bisections), whose pieces each lie in one element of before
+        #: (:class:`wcut.cut.quadratic.QuadraticCutter` falls back to it; Python operators only)
+        self.flips = True
         if not self.compiled:
             topology.face_tets  # the Python operators walk the faces: linked now, not in the first cut
         if mean_edge_length is None:
@@ -555,7 +559,7 @@ class Cutter:
         for key in plan.faces:
             if key not in topo.face_tets:
                 continue
-            if len(topo.face_tets[key]) == 2:
+            if len(topo.face_tets[key]) == 2 and self.flips:
                 try:  # refused also where it would make a sliver: the face is split instead
                     flip23(topo, key, quality_drop=QUALITY_DROP)
                     stats.flips23 += 1
@@ -576,7 +580,7 @@ class Cutter:
         for (a, b), t in plan.edges:
             if not topo.edge_tets(a, b):
                 continue
-            if not (self.curved_boundary and topo.is_boundary_edge(a, b)):
+            if self.flips and not (self.curved_boundary and topo.is_boundary_edge(a, b)):
                 try:
                     remove_edge(topo, a, b)
                     stats.general_flips += 1

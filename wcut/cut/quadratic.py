@@ -33,9 +33,12 @@ weights of the element the point lies in; :meth:`wcut.model.Model.rebuild` appli
 
 An element spanning several elements of before (a 2-3 or general flip) is only approximately
 ``Phi``; should one fold (``det J <= 0`` at a Gauss point or node), its new interior edges are
-made straight (the thesis's straight barycentre), then, if it still folds, its other new edges.
-Straightening a new edge on the object's boundary changes the surface slightly; the result
-counts those edges (``QuadraticCutResult.straightened_boundary_edges``).
+made straight (the thesis's straight barycentre). Should it still fold, a new edge on a curved
+boundary would have to be made straight too, which would move the surface and change the
+volume (by 7.5e-7 where two planes cross in the organ): instead the cut is made again by splits
+only (no flip), whose pieces each lie in one element of before and never fold. On a flat
+boundary the other new edges are made straight (they stay in the boundary's plane); the result
+counts the straightened edges (``QuadraticCutResult.straightened_edges``).
 """
 
 from __future__ import annotations
@@ -135,19 +138,33 @@ class QuadraticCutter:
         :attr:`velocities` become those after the cut."""
         before = self.mesh
         parameters = self.topology.rest_positions.copy()
-        # a curved element may fold where the corner cutter saw none: then the cut is undone
+        # a curved element may fold where the corner cutter saw none: then the cut is made
+        # again by splits only, or undone
         saved = copy.deepcopy(self.cutter, {id(self): self}) if self.curved_boundary else None
-        result = self.cutter.cut(surface, bounds, progressive=progressive, rest=rest)
-        linear = result.change
-        if linear.is_empty:
+        result, placement = self._corner_cut(surface, bounds, progressive, rest, parameters)
+        if placement is None:
             return QuadraticCutResult(before, _identity_change(before), result.stats)
-        placement = _Placement(before, self._corner_tets, self.corner_nodes, parameters, self.topology, linear)
         try:
             straightened, on_boundary = placement.unfold(self.topology)
         except CutError:
-            if saved is not None:
-                self.cutter, self.topology = saved, saved.topology
-            raise
+            if saved is None:
+                raise
+            straightened = on_boundary = None
+        if saved is not None and (on_boundary is None or on_boundary > 0):
+            # straightening a boundary edge moves the surface and changes the volume: the
+            # pieces of split elements each lie in one curved element of before, so they
+            # never fold (see the module docstring); the cut is made again by splits only
+            self.cutter, self.topology = saved, saved.topology
+            retry = copy.deepcopy(saved, {id(self): self})
+            self.cutter.flips = False
+            try:
+                result, placement = self._corner_cut(surface, bounds, progressive, rest, parameters)
+                straightened, on_boundary = placement.unfold(self.topology)
+            except CutError:
+                self.cutter, self.topology = retry, retry.topology
+                raise
+            finally:
+                self.cutter.flips = True
         mesh, change = placement.result(name=before.name)
         self.positions = _apply(change, self.positions)
         self.velocities = _apply(change, self.velocities)
@@ -158,6 +175,15 @@ class QuadraticCutter:
         self.topology.velocities[:] = self.velocities[self.corner_nodes]
         return QuadraticCutResult(mesh, change, result.stats, straightened, on_boundary)
 
+
+    def _corner_cut(self, surface, bounds, progressive: bool, rest: bool, parameters: np.ndarray):
+        """The corner cutter's cut and the placement of the nodes after it (None when the cut
+        changed nothing)."""
+        result = self.cutter.cut(surface, bounds, progressive=progressive, rest=rest)
+        if result.change.is_empty:
+            return result, None
+        return result, _Placement(self.mesh, self._corner_tets, self.corner_nodes, parameters, self.topology,
+                                  result.change)
 
     def snap_keeps_shape(self, v: int, other: int, s: float) -> bool:
         """Whether snapping corner ``v`` to ``(1 - s) v + s other`` (parameter positions)
