@@ -159,6 +159,8 @@ class QuadraticCutter:
             self.cutter.flips = False
             try:
                 result, placement = self._corner_cut(surface, bounds, progressive, rest, parameters)
+                if placement is None:
+                    return QuadraticCutResult(before, _identity_change(before), result.stats)
                 straightened, on_boundary = placement.unfold(self.topology)
             except CutError:
                 self.cutter, self.topology = retry, retry.topology
@@ -174,7 +176,6 @@ class QuadraticCutter:
         self.topology.positions[:] = self.positions[self.corner_nodes]
         self.topology.velocities[:] = self.velocities[self.corner_nodes]
         return QuadraticCutResult(mesh, change, result.stats, straightened, on_boundary)
-
 
     def _corner_cut(self, surface, bounds, progressive: bool, rest: bool, parameters: np.ndarray):
         """The corner cutter's cut and the placement of the nodes after it (None when the cut
