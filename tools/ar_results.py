@@ -52,8 +52,7 @@ def run_scene(scene: Path, work: Path, frames: int | None,
     """The two rows of a scene (cut, no-cut) and the last overlay frame of the run with cuts;
     ``texture_seed`` replaces the scene's. A run that fails (a diverging model) gives a row
     with its ``error`` and no metrics, and the other runs go on."""
-    import cv2
-
+    from wcut.ar.overlay import last_frame
     from wcut.ar.pipeline import run_ar
     from wcut.ar.synth import load_synth_scene, synthesize
     from wcut.errors import WcutError
@@ -75,15 +74,7 @@ def run_scene(scene: Path, work: Path, frames: int | None,
         for key in MM:
             row[key] = None if row[key] is None else 1e3 * row[key]
         rows.append(row)
-    reader = cv2.VideoCapture(str(work / f"{name}-cut.avi"))
-    last = None
-    while True:
-        ok, frame = reader.read()
-        if not ok:
-            break
-        last = frame
-    reader.release()
-    return rows, last
+    return rows, last_frame(work / f"{name}-cut.avi")
 
 
 def _run_name(row: dict) -> str:

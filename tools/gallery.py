@@ -65,9 +65,9 @@ def picture(scene_path: Path, shot, frames: int | None, width: int) -> np.ndarra
     mesh = sim.model.mesh
     x = sim.state.particle_q.numpy().astype(np.float64)
     if hasattr(mesh, "tets"):  # a solid: its boundary, the wound by the rest configuration
-        corners = mesh.linear() if getattr(mesh, "order", 1) == 2 else mesh
+        corners = mesh.linear()
         triangles = corners.boundary().triangles
-        original = before.linear() if getattr(before, "order", 1) == 2 else before
+        original = before.linear()
         surface = TriangleSurface(original.vertices, original.boundary().triangles)
         wound = wound_faces(mesh.vertices, triangles, surface, 1e-6 * original.mean_edge_length())
     else:  # a shell: its corner triangles, the crack's lips in the surface colour
@@ -93,6 +93,7 @@ def ar_overlay(scene: Path, frames: int | None, width: int) -> np.ndarray:
     makes of ``scene``, scaled to ``width`` pixels, as an RGB image."""
     import cv2
 
+    from wcut.ar.overlay import last_frame
     from wcut.ar.pipeline import run_ar
     from wcut.ar.synth import synthesize
 
@@ -100,13 +101,7 @@ def ar_overlay(scene: Path, frames: int | None, width: int) -> np.ndarray:
         capture, video = Path(work) / "capture", Path(work) / "overlay.avi"
         synthesize(scene, capture, frames=frames, progress=False)
         run_ar(capture, Path(work) / "model.usdc", overlay=video, progress=False)
-        reader, last = cv2.VideoCapture(str(video)), None
-        while True:
-            ok, frame = reader.read()
-            if not ok:
-                break
-            last = frame
-        reader.release()
+        last = last_frame(video)
     if last is None:
         raise RuntimeError(f"{video.name}: no frame could be read back")
     height = max(1, round(last.shape[0] * width / last.shape[1]))

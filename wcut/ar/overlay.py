@@ -22,7 +22,7 @@ from ..errors import ExportError, WcutError
 from ..io import atomic_path
 from .metrics import rasterize
 
-__all__ = ["OverlayError", "draw_overlay", "VideoOut", "INTERNAL_COLORS"]
+__all__ = ["OverlayError", "draw_overlay", "VideoOut", "last_frame", "INTERNAL_COLORS"]
 
 
 class OverlayError(WcutError):
@@ -138,6 +138,19 @@ def draw_overlay(
         if len(c) >= 2:
             cv2.polylines(out, [_fixed(c)], False, CUT_COLOR, 2, cv2.LINE_AA, _SHIFT)
     return out
+
+
+def last_frame(path: str | os.PathLike) -> np.ndarray | None:
+    """The last frame (BGR, uint8) of the video at ``path``, as OpenCV reads it; None when no
+    frame can be read (a missing or empty file)."""
+    reader, last = cv2.VideoCapture(str(path)), None
+    while True:
+        ok, frame = reader.read()
+        if not ok:
+            break
+        last = frame
+    reader.release()
+    return last
 
 
 class VideoOut:
