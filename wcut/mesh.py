@@ -299,6 +299,11 @@ class TetMesh(_VertexQueries):
             self._boundary = BoundarySurface(triangles, vertex_ids, local.reshape(-1, 3))
         return self._boundary
 
+    def linear(self) -> "TetMesh":
+        """The mesh of linear elements: this one (as ``QuadraticTetMesh.linear`` gives its
+        corners), so code that needs corners takes ``mesh.linear()`` of either."""
+        return self
+
     def edges(self) -> np.ndarray:
         """(E, 2) unique undirected edges, each as (low, high) vertex indices."""
         pairs = self.tets[:, [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]].reshape(-1, 2)

@@ -47,8 +47,8 @@ def cut_mesh(mesh, surface: CutSurface, method: str = "paulus", epsilon: float =
         after, stats = topology.to_mesh(name=mesh.name), result.stats
     if result.change.is_empty:
         raise CutError(f"the cut surface misses the mesh {mesh.name} (no element crossed)")
-    before_corners = mesh.linear() if getattr(mesh, "order", 1) == 2 else mesh
-    corners = after.linear() if getattr(after, "order", 1) == 2 else after
+    before_corners = mesh.linear()
+    corners = after.linear()
     if isinstance(surface, Plane):
         separation = plane_separation(corners.vertices, corners.tets, surface, corner_cutter.tolerance,
                                       mean_edge_length=corner_cutter.mean_edge_length,
