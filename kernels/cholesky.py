@@ -10,8 +10,10 @@ with ``t_I = R_i^T r_i``, where ``I = factor_position[i]`` and ``R_i`` is the ro
 ``i`` (:func:`node_rotations_tet`, :func:`node_rotations_gauss`), so the factor of the rest shape serves an
 object that has turned. A node without a position (-1: added or changed by a topological
 change since the factorization) gets the Jacobi preconditioner ``z_i = D_i^-1 r_i`` until the
-factor is refreshed; a fixed node gets 0. Both parts are symmetric positive definite, so the
-sum is a valid preconditioner for the conjugate gradient.
+factor is refreshed; a fixed node gets 0. A node of the patch (``patch_position[i] >= 0``)
+takes the second, small factor of the patch instead (``wcut.preconditioner``). Every part is
+symmetric positive definite on its own nodes, so the sum is a valid preconditioner for the
+conjugate gradient.
 
 The triangular solves (:func:`block_forward`, :func:`block_backward`) run on one thread each:
 a row needs the rows before it. On the CPU, where Warp runs threads one after another anyway,
@@ -57,15 +59,21 @@ def node_rotations_gauss(
 def rotate_into_factor(
     chunk: int,
     factor_position: wp.array(dtype=wp.int32),
+    patch_position: wp.array(dtype=wp.int32),
     node_rotation: wp.array(dtype=wp.quat),
     r: wp.array(dtype=wp.vec3),
     t: wp.array(dtype=wp.vec3),
+    t_patch: wp.array(dtype=wp.vec3),
 ):
-    """``t[factor_position[i]] = R_i^T r_i`` for the nodes in the factor (``t`` is zero before)."""
+    """``t_patch[patch_position[i]] = R_i^T r_i`` for the nodes of the patch, else
+    ``t[factor_position[i]] = R_i^T r_i`` for the nodes in the factor (both zero before)."""
     lo, hi = thread_range(wp.tid(), chunk, r.shape[0])
     for i in range(lo, hi):
         s = factor_position[i]
-        if s >= 0:
+        p = patch_position[i]
+        if p >= 0:
+            t_patch[p] = wp.quat_rotate_inv(node_rotation[i], r[i])
+        elif s >= 0:
             t[s] = wp.quat_rotate_inv(node_rotation[i], r[i])
 
 
@@ -115,24 +123,29 @@ def rotate_from_factor(
     chunk: int,
     counter: wp.array(dtype=wp.int32),
     factor_position: wp.array(dtype=wp.int32),
+    patch_position: wp.array(dtype=wp.int32),
     node_rotation: wp.array(dtype=wp.quat),
     inv_diagonal: wp.array(dtype=wp.vec3),
     r: wp.array(dtype=wp.vec3),
     t: wp.array(dtype=wp.vec3),
+    t_patch: wp.array(dtype=wp.vec3),
     z: wp.array(dtype=wp.vec3),
     rz: wp.array(dtype=float),
 ):
-    """``z_i = R_i t[factor_position[i]]`` (``D_i^-1 r_i`` for a node outside the factor, 0 for a
-    fixed one) and ``rz[counter] = r.z``."""
+    """``z_i = R_i t_patch[patch_position[i]]`` for a node of the patch, ``R_i
+    t[factor_position[i]]`` for one in the factor, ``D_i^-1 r_i`` for any other (0 for a fixed
+    one), and ``rz[counter] = r.z``."""
     lo, hi = thread_range(wp.tid(), chunk, r.shape[0])
     rz_sum = float(0.0)
     for i in range(lo, hi):
         s = factor_position[i]
+        p = patch_position[i]
         ri = r[i]
         zi = wp.cw_mul(inv_diagonal[i], ri)
-        if s >= 0:
+        if p >= 0:
+            zi = wp.quat_rotate(node_rotation[i], t_patch[p])
+        elif s >= 0:
             zi = wp.quat_rotate(node_rotation[i], t[s])
         z[i] = zi
         rz_sum += wp.dot(ri, zi)
     wp.atomic_add(rz, counter[0], rz_sum)
-

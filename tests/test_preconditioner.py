@@ -1,6 +1,7 @@
 """The rotated rest factor (wcut.preconditioner): its matrix is the assembled system matrix of the
 rest shape, its application is that matrix's inverse turned by the node rotations, the nodes a
-topological change touched fall back to Jacobi, and the factor is refreshed after a rebuild."""
+topological change touched and their neighbours get the factor of their own rest matrix (the
+patch) until the factor is refreshed after a rebuild."""
 
 import numpy as np
 import pytest
@@ -21,8 +22,8 @@ from wcut.topology import TetTopology
 DT = 0.01
 
 
-def _beam_model(**options):
-    mesh = wcut.beam(4, 2, 2, size=(0.2, 0.05, 0.05))
+def _beam_model(cells=(4, 2, 2), **options):
+    mesh = wcut.beam(*cells, size=(0.05 * cells[0], 0.05, 0.05))
     fixed = mesh.vertices_in_box((-1, -1, -1), (1e-9, 1, 1))
     return mesh, fixed, Model(mesh, youngs_modulus=2e5, poisson_ratio=0.4, fixed=fixed, **options)
 
@@ -90,10 +91,10 @@ def test_a_solid_gets_the_factor_and_a_shell_jacobi_by_default():
         SolverCorotational(model, preconditioner="ilu")
 
 
-def _cut_beam(background):
-    """A clamped beam bent a few steps, then cut through by a plane: the model, state and
-    solver carried over (``SolverCorotational.rebuilt``)."""
-    mesh, fixed, model = _beam_model()
+def _cut_beam(background, cells=(4, 2, 2)):
+    """A clamped beam bent a few steps, then cut through by a plane near x = 0.1 m: the model,
+    state and solver carried over (``SolverCorotational.rebuilt``)."""
+    mesh, fixed, model = _beam_model(cells)
     solver = SolverCorotational(model, cg_tolerance=1e-6)
     solver.preconditioner.background = background
     state, scratch = model.state(), model.state()
@@ -132,6 +133,56 @@ def test_the_factor_is_refreshed_after_a_rebuild(background):
     expected = np.zeros_like(r)
     expected[free] = spla.spsolve(A.tocsc(), r[free].ravel()).reshape(-1, 3)
     assert np.abs(P.apply(r) - expected).max() < 1e-4 * np.abs(expected).max()
+
+
+def test_the_nodes_a_cut_touched_get_the_factor_of_their_own_rest_matrix(monkeypatch):
+    """Until the refresh, the patch serves the nodes outside the factor of before and their free
+    neighbours: on them the preconditioner inverts the new model's rest matrix restricted to
+    those nodes; the other nodes get the factor of before, never the patch's values."""
+    monkeypatch.setattr(pc, "REFRESH_SECONDS_PER_BLOCK", 1.0)  # the refresh due a long way off
+    model, state, solver, change = _cut_beam(True, cells=(12, 2, 2))
+    P = solver.preconditioner
+    P.update(DT)  # (the patch is made at the first step after the change)
+    outside = P._outside()
+    patch = np.flatnonzero(P.patch_position.numpy() >= 0)
+    cells = model.tet_indices.numpy()
+    around = np.unique(cells[np.isin(cells, outside).any(axis=1)])
+    free_mask = model.particle_fixed.numpy() == 0
+    assert len(outside) > 0 and np.array_equal(patch, around[free_mask[around]])
+    assert P.patch_count == len(patch) < model.particle_count // 2
+    P.node_rotation.assign(np.tile([0.0, 0.0, 0.0, 1.0], (model.particle_count, 1)).astype(np.float32))
+    A, _ = pc.rest_system_matrix(pc.RestData.of(model), DT, 0.0, 0.0, nodes=patch)
+    r = np.zeros((model.particle_count, 3))
+    r[patch] = np.random.default_rng(6).standard_normal((len(patch), 3))
+    z = P.apply(r)
+    expected = spla.spsolve(A.tocsc(), r[patch].ravel()).reshape(-1, 3)
+    assert np.abs(z[patch] - expected).max() < 1e-4 * np.abs(expected).max()
+    others = np.setdiff1d(np.arange(model.particle_count), patch)
+    assert np.abs(z[others]).max() == 0.0  # the patch's nodes give the factor of before nothing
+
+
+def test_the_patch_cuts_the_iterations_after_a_cut(monkeypatch):
+    """The steps after a cut, before the refresh: with the patch, far fewer iterations than with
+    Jacobi on the nodes the cut touched (the factor of before still joins their neighbours to
+    the material the cut removed)."""
+    from wcut import solver as solver_module
+
+    monkeypatch.setattr(solver_module, "STRUGGLING_ITERATIONS", 10 ** 6)
+    counts = {}
+    for patched in (True, False):
+        if not patched:
+            monkeypatch.setattr(pc.RotatedCholesky, "_make_patch", lambda self: setattr(self, "_patch_due", False))
+        monkeypatch.setattr(pc, "REFRESH_SECONDS_PER_BLOCK", 1.0)  # no refresh in these steps
+        model, state, solver, _ = _cut_beam(True, cells=(12, 2, 2))
+        solver.cg_tolerance = 1e-4
+        scratch = model.state()
+        counts[patched] = []
+        for _ in range(4):
+            solver.step(state, scratch, None, DT)
+            state, scratch = scratch, state
+            counts[patched].append(solver.last_cg_iterations)
+        assert solver.preconditioner.refreshing
+    assert sum(counts[True]) < 0.5 * sum(counts[False]), counts
 
 
 def test_a_background_refresh_is_taken_at_a_fixed_step():
