@@ -5,15 +5,18 @@ fill-reducing order ``Q``), stored by 3x3 blocks, row-wise: block row ``I`` hold
 lower blocks ``L_IJ`` (``J < I``, columns ``block_column[row_start[I]:row_start[I+1]]``) and
 the inverse of its lower-triangular diagonal block, ``diagonal_inverse[I] = L_II^-1``.
 
-Applied to a residual ``r`` (Courtecuisse et al. 2010, 2014): ``z_i = R_i [(L L^T)^-1 t]_I``
-with ``t_I = R_i^T r_i``, where ``I = factor_position[i]`` and ``R_i`` is the rotation of node
-``i`` (:func:`node_rotations_tet`, :func:`node_rotations_gauss`), so the factor of the rest shape serves an
-object that has turned. A node without a position (-1: added or changed by a topological
-change since the factorization) gets the Jacobi preconditioner ``z_i = D_i^-1 r_i`` until the
-factor is refreshed; a fixed node gets 0. A node of the patch (``patch_position[i] >= 0``)
-takes the second, small factor of the patch instead (``wcut.preconditioner``). Every part is
-symmetric positive definite on its own nodes, so the sum is a valid preconditioner for the
-conjugate gradient.
+Applied to a residual ``r`` (Courtecuisse et al. 2010, 2014): ``z_i = R_i sum_k w_ik
+[(L L^T)^-1 t]_I(i,k)`` with ``t_I = sum w_ik R_i^T r_i`` over the nodes ``i`` and slots ``k``
+with ``I(i, k) = factor_rows[i, k]``, ``w_ik = factor_weights[i, k]``, and ``R_i`` the rotation
+of node ``i`` (:func:`node_rotations_tet`, :func:`node_rotations_gauss`), so the factor of the
+rest shape serves an object that has turned. For linear elements a node has one row, weight 1;
+for quadratic elements the factor is of the corners and a node is interpolated from up to two
+(``wcut.preconditioner``), with ``D_i^-1 r_i`` added (``smoother``). A node without a row (-1:
+added or changed by a topological change since the factorization) gets the Jacobi
+preconditioner ``z_i = D_i^-1 r_i``; a fixed node gets 0. A node of the patch
+(``patch_position[i] >= 0``) takes the second, small factor of the patch instead. Every part is
+symmetric positive semi-definite, and their sum is positive definite, so it is a valid
+preconditioner for the conjugate gradient.
 
 The triangular solves (:func:`block_forward`, :func:`block_backward`) run on one thread each:
 a row needs the rows before it. On the CPU, where Warp runs threads one after another anyway,
@@ -58,7 +61,8 @@ def node_rotations_gauss(
 @wp.kernel
 def rotate_into_factor(
     chunk: int,
-    factor_position: wp.array(dtype=wp.int32),
+    factor_rows: wp.array2d(dtype=wp.int32),
+    factor_weights: wp.array2d(dtype=float),
     patch_position: wp.array(dtype=wp.int32),
     node_rotation: wp.array(dtype=wp.quat),
     r: wp.array(dtype=wp.vec3),
@@ -66,15 +70,18 @@ def rotate_into_factor(
     t_patch: wp.array(dtype=wp.vec3),
 ):
     """``t_patch[patch_position[i]] = R_i^T r_i`` for the nodes of the patch, else
-    ``t[factor_position[i]] = R_i^T r_i`` for the nodes in the factor (both zero before)."""
+    ``t[factor_rows[i, k]] += factor_weights[i, k] R_i^T r_i`` (both zero before)."""
     lo, hi = thread_range(wp.tid(), chunk, r.shape[0])
     for i in range(lo, hi):
-        s = factor_position[i]
         p = patch_position[i]
+        u = wp.quat_rotate_inv(node_rotation[i], r[i])
         if p >= 0:
-            t_patch[p] = wp.quat_rotate_inv(node_rotation[i], r[i])
-        elif s >= 0:
-            t[s] = wp.quat_rotate_inv(node_rotation[i], r[i])
+            t_patch[p] = u
+        else:
+            for k in range(2):
+                row = factor_rows[i, k]
+                if row >= 0:
+                    wp.atomic_add(t, row, factor_weights[i, k] * u)
 
 
 @wp.kernel
@@ -122,7 +129,9 @@ def block_backward(
 def rotate_from_factor(
     chunk: int,
     counter: wp.array(dtype=wp.int32),
-    factor_position: wp.array(dtype=wp.int32),
+    smoother: int,
+    factor_rows: wp.array2d(dtype=wp.int32),
+    factor_weights: wp.array2d(dtype=float),
     patch_position: wp.array(dtype=wp.int32),
     node_rotation: wp.array(dtype=wp.quat),
     inv_diagonal: wp.array(dtype=wp.vec3),
@@ -132,20 +141,26 @@ def rotate_from_factor(
     z: wp.array(dtype=wp.vec3),
     rz: wp.array(dtype=float),
 ):
-    """``z_i = R_i t_patch[patch_position[i]]`` for a node of the patch, ``R_i
-    t[factor_position[i]]`` for one in the factor, ``D_i^-1 r_i`` for any other (0 for a fixed
-    one), and ``rz[counter] = r.z``."""
+    """``z_i = R_i t_patch[patch_position[i]]`` for a node of the patch; else ``R_i sum_k
+    factor_weights[i, k] t[factor_rows[i, k]]``, plus ``D_i^-1 r_i`` with ``smoother`` (the
+    two-level preconditioner of quadratic elements) or where the node has no row (0 for a
+    fixed one); and ``rz[counter] = r.z``."""
     lo, hi = thread_range(wp.tid(), chunk, r.shape[0])
     rz_sum = float(0.0)
     for i in range(lo, hi):
-        s = factor_position[i]
         p = patch_position[i]
         ri = r[i]
-        zi = wp.cw_mul(inv_diagonal[i], ri)
+        jacobi = wp.cw_mul(inv_diagonal[i], ri)
+        zi = jacobi
         if p >= 0:
             zi = wp.quat_rotate(node_rotation[i], t_patch[p])
-        elif s >= 0:
-            zi = wp.quat_rotate(node_rotation[i], t[s])
+        elif factor_rows[i, 0] >= 0:
+            acc = factor_weights[i, 0] * t[factor_rows[i, 0]]
+            if factor_rows[i, 1] >= 0:
+                acc = acc + factor_weights[i, 1] * t[factor_rows[i, 1]]
+            zi = wp.quat_rotate(node_rotation[i], acc)
+            if smoother != 0:
+                zi = zi + jacobi
         z[i] = zi
         rz_sum += wp.dot(ri, zi)
     wp.atomic_add(rz, counter[0], rz_sum)

@@ -15,7 +15,7 @@ METHOD_KEYS = {"method", "epsilon", "cut_elements", "added_nodes_per_cut_element
 
 P2_KEYS = {"name", "tets", "nodes", "step_ms", "steps_per_second", "cpu_threads", "step_ms_one_thread",
            "forces_ns_per_element", "matvec_ns_per_element", "p1_same_corners_step_ms", "cg_iterations"}
-ACCURACY_KEYS = {"name", "youngs_modulus", "tets", "nodes", "static_tip_mm", "steps", "settled", "step_ms",
+ACCURACY_KEYS = {"name", "youngs_modulus", "tets", "nodes", "static_tip_mm", "steps", "settled", "first_step_ms", "step_ms",
                  "cg_iterations", "tip_error", "inverted_elements", "jacobi_step_ms", "jacobi_cg_iterations", "jacobi_capped",
                  "jacobi_step_ratio"}
 #: Two short beams of 1 cm cells with the 4 x 5 cross-section of wcut.bench.CUT_SCENES.
@@ -49,6 +49,7 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     assert set(accuracy) == ACCURACY_KEYS
     assert accuracy["settled"] and accuracy["tip_error"] < 0.01 and accuracy["inverted_elements"] == 0, accuracy
     assert accuracy["static_tip_mm"] > 0 and accuracy["cg_iterations"] >= 1 and accuracy["jacobi_cg_iterations"] >= 1
+    assert accuracy["first_step_ms"] > 0 and accuracy["step_ms"] > 0
 
     # quadratic elements: same corners, plus one node per edge
     (p2,) = written["quadratic"]

@@ -14,6 +14,17 @@ Jacobi 199 iterations, 3x3 block Jacobi 191, smoothed-aggregation AMG (pyamg) 8 
 factor is kept: it converges fastest in time, and its solves run as Warp kernels inside the
 recorded or captured step.
 
+Quadratic elements get two levels: the factor of the Galerkin projection ``Pi^T A0 Pi`` of the
+rest matrix on the linear functions of the free corners (``Pi`` interpolates: 1 at a corner,
+1/2 at the middle of its edges), applied rotated, plus Jacobi on every node (``wcut.kernels.
+cholesky``, ``smoother``): ``P^-1 = R Pi (Pi^T A0 Pi)^-1 Pi^T R^T + D^-1``, a p-multigrid
+preconditioner in additive form. The factor of the whole quadratic system is far too dense: on
+the 10000-element P2 beam of ``wcut bench`` it has 2.2 million blocks, takes some 16 s to
+compute and 20-25 ms per application, so a step took 104 ms with 3 iterations; the corners'
+factor has 104 thousand blocks and the step 63 ms with 10 iterations (side by side). A
+symmetric V-cycle (Jacobi, corners, Jacobi) needed 4-5 iterations against the additive form's
+7-11 (rest matrix, four right-hand sides), but three products by A per iteration: no faster.
+
 The factorization is SuperLU's (scipy) on a nested-dissection order of the nodes (METIS,
 through pymetis), without pivoting (``A0`` is symmetric positive definite), its ``L`` taken
 apart into 3x3 blocks. Scipy has no sparse Cholesky of its own; SuperLU's LU of a symmetric
@@ -335,7 +346,8 @@ class RotatedCholesky:
         n, d = model.particle_count, model.device
         self.node_rotation = wp.full(n, wp.quat_identity(), dtype=wp.quat, device=d)
         self.owner = wp.array(_owners(model), dtype=wp.int32, device=d)
-        self.factor_position = wp.full(n, -1, dtype=wp.int32, device=d)
+        self.factor_rows = wp.full((n, 2), -1, dtype=wp.int32, device=d)
+        self.factor_weights = wp.zeros((n, 2), dtype=wp.float32, device=d)
         self._factor: BlockFactor | None = None
         self._factored_for: tuple | None = None  # (dt, alpha, beta) of the factor in use
         self._arrays: tuple | None = None  # device arrays of the factor in use
@@ -364,8 +376,8 @@ class RotatedCholesky:
         return 0 if self._patch is None else len(self._patch[0].order)
 
     def _outside(self) -> np.ndarray:
-        positions = self.factor_position.numpy()
-        return np.flatnonzero((positions < 0) & (self.model.particle_fixed.numpy() == 0))
+        rows = self.factor_rows.numpy()
+        return np.flatnonzero((rows < 0).all(axis=1) & (self.model.particle_fixed.numpy() == 0))
 
     @property
     def refreshing(self) -> bool:
@@ -383,11 +395,11 @@ class RotatedCholesky:
         if self._pending is not None and (self._steps >= self._pending.due_step or struggling
                                           or self._factor is None):
             pending, self._pending = self._pending, None
-            self._adopt(pending.result(), pending.positions, pending.key)
+            self._adopt(*pending.result(), pending.positions, pending.key)
             self._outdated = pending.stale
         if self._factor is None:
             data = RestData.of(m)
-            self._adopt(_compute(data, key), _free_index(data), key)
+            self._adopt(*_compute(data, key), _free_index(data), key)
             self._outdated = False
         if self._pending is None and (self._outdated or self._factored_for != key):
             self._start_refresh(key)
@@ -406,16 +418,18 @@ class RotatedCholesky:
             delay = max(1, int(np.ceil(REFRESH_SECONDS_PER_BLOCK * self._factor.block_count / key[0])))
         self._pending = _Refresh(data, key, _free_index(data), self.background, self._steps + delay)
 
-    def _adopt(self, factor: BlockFactor, free_index: np.ndarray, key: tuple) -> None:
-        """Use ``factor``; ``free_index`` (N,) maps the nodes to the factored model's free nodes
-        (-1: outside the factor)."""
+    def _adopt(self, factor: BlockFactor, rows: np.ndarray, weights: np.ndarray, free_index: np.ndarray,
+               key: tuple) -> None:
+        """Use ``factor``, whose block rows and weights per free node of the factored model are
+        ``rows`` and ``weights`` (:func:`_compute`); ``free_index`` (N,) maps the nodes to the
+        factored model's free nodes (-1: outside the factor)."""
         d = self.model.device
         self._factor, self._factored_for = factor, key
         self._arrays = _device_arrays(factor, d)
-        block_row = np.empty(len(factor.order), dtype=np.int64)
-        block_row[factor.order] = np.arange(len(factor.order))
-        inside = free_index >= 0
-        self.factor_position.assign(np.where(inside, block_row[np.where(inside, free_index, 0)], -1).astype(np.int32))
+        inside = (free_index >= 0)[:, None]
+        at = np.where(inside[:, 0], free_index, 0)
+        self.factor_rows.assign(np.where(inside, rows[at], -1).astype(np.int32))
+        self.factor_weights.assign(np.where(inside, weights[at], 0.0).astype(np.float32))
         self._generation += 1
         self._patch_due = True
 
@@ -445,8 +459,10 @@ class RotatedCholesky:
         out.node_rotation = wp.array(_carried_rotations(self.node_rotation.numpy(), change), dtype=wp.quat, device=d)
         out.owner = wp.array(_owners(model), dtype=wp.int32, device=d)
         out._factor, out._factored_for, out._arrays = self._factor, self._factored_for, self._arrays
-        positions = _carried_positions(self.factor_position.numpy(), change, model)
-        out.factor_position = wp.array(positions, dtype=wp.int32, device=d)
+        rows = _carried_positions(self.factor_rows.numpy(), change, model)
+        out.factor_rows = wp.array(rows, dtype=wp.int32, device=d)
+        out.factor_weights = wp.array(np.where(rows >= 0, _carried_positions(self.factor_weights.numpy(), change, model),
+                                               0.0), dtype=wp.float32, device=d)
         out.patch_position = wp.full(model.particle_count, -1, dtype=wp.int32, device=d)
         out._patch, out._patch_due = None, out._factor is not None
         out._generation, out._steps = self._generation + 1, self._steps
@@ -504,12 +520,12 @@ class RotatedCholesky:
         return [
             _MemsetLaunch(t),  # (the patch's rows are all written: each is a free node's)
             wp.launch(cholesky.rotate_into_factor, node_threads, device=d, record_cmd=True,
-                      inputs=[chunk, self.factor_position, self.patch_position, self.node_rotation, r],
-                      outputs=[t, patch_t]),
+                      inputs=[chunk, self.factor_rows, self.factor_weights, self.patch_position, self.node_rotation,
+                              r], outputs=[t, patch_t]),
             *solves,
             wp.launch(cholesky.rotate_from_factor, node_threads, device=d, record_cmd=True,
-                      inputs=[chunk, counter, self.factor_position, self.patch_position, self.node_rotation,
-                              inv_diagonal, r, t, patch_t], outputs=[z, rz]),
+                      inputs=[chunk, counter, int(m.tet_order == 2), self.factor_rows, self.factor_weights,
+                              self.patch_position, self.node_rotation, inv_diagonal, r, t, patch_t], outputs=[z, rz]),
         ]
 
     def apply(self, r: np.ndarray, inv_diagonal: np.ndarray | None = None) -> np.ndarray:
@@ -567,10 +583,10 @@ def _untouched(change, model) -> np.ndarray:
 
 
 def _carried_positions(positions: np.ndarray, change, model) -> np.ndarray:
-    """Per-node factor positions (or free indices) after ``change``: kept for the untouched
-    vertices (:func:`_untouched`), -1 for the others."""
-    keep = _untouched(change, model)
-    out = np.full(change.vertex_count_after, -1, dtype=np.int64)
+    """Per-node factor rows (N, ...) (or free indices (N,)) after ``change``: kept for the
+    untouched vertices (:func:`_untouched`), -1 for the others."""
+    keep = _untouched(change, model).reshape((-1,) + (1,) * (positions.ndim - 1))
+    out = np.full((change.vertex_count_after,) + positions.shape[1:], -1, dtype=positions.dtype)
     k = min(len(positions), len(out))
     out[:k] = np.where(keep[:k], positions[:k], -1)
     return out
@@ -617,9 +633,51 @@ class _MemsetLaunch:
         self.array.zero_()
 
 
-def _compute(data: RestData, key: tuple) -> BlockFactor:
-    A, _ = rest_system_matrix(data, *key)
-    return factor(A)
+def _coarse_space(data: RestData, free: np.ndarray):
+    """Of a quadratic model: the interpolation ``Pi`` (free nodes x free corners, CSR) of
+    linear functions on the corners (1 at a corner, 1/2 at the middle of its edges), whose
+    columns are the free corners; None for linear elements."""
+    tets = next((part[2] for part in data.parts if part[0] == "tet"), None)
+    if tets is None or tets.shape[1] == 4:
+        return None
+    from . import p2
+
+    corner = np.full(data.node_count, -1, dtype=np.int64)
+    corners = np.unique(tets[:, :4])
+    corners = corners[~data.fixed[corners]]
+    corner[corners] = np.arange(len(corners))
+    middles, first = np.unique(tets[:, 4:].ravel(), return_index=True)
+    ends = tets[:, p2.EDGES].reshape(-1, 2)[first]  # the corners of each edge node, once
+    rows = np.concatenate([corners, np.repeat(middles, 2)])
+    cols = np.concatenate([corner[corners], corner[ends.ravel()]])
+    weights = np.concatenate([np.ones(len(corners)), np.full(ends.size, 0.5)])
+    row = np.full(data.node_count, -1, dtype=np.int64)
+    row[free] = np.arange(len(free))
+    keep = (row[rows] >= 0) & (cols >= 0)
+    return sp.csr_matrix((weights[keep], (row[rows[keep]], cols[keep])), shape=(len(free), len(corners)))
+
+
+def _compute(data: RestData, key: tuple) -> tuple:
+    """The factor of ``data``'s rest system matrix (for quadratic elements, of its Galerkin
+    projection ``Pi^T A0 Pi`` on the linear functions of the corners, :func:`_coarse_space`), and
+    per free node of ``data`` the factor's block rows it is interpolated from (two, -1 for none)
+    with their weights."""
+    A, free = rest_system_matrix(data, *key)
+    Pi = _coarse_space(data, free)
+    if Pi is None:
+        Pi = sp.identity(len(free), format="csr")
+    else:
+        Pi3 = sp.kron(Pi, sp.identity(3), format="csr")
+        A = sp.bsr_matrix((Pi3.T @ A.tocsr() @ Pi3).tocsr(), blocksize=(3, 3))
+    F = factor(A)
+    block_row = np.empty(len(F.order), dtype=np.int64)
+    block_row[F.order] = np.arange(len(F.order))
+    counts = np.diff(Pi.indptr)
+    slot = np.arange(Pi.nnz) - np.repeat(Pi.indptr[:-1], counts)
+    rows, weights = np.full((len(free), 2), -1, dtype=np.int32), np.zeros((len(free), 2), dtype=np.float32)
+    at = np.repeat(np.arange(len(free)), counts)
+    rows[at, slot], weights[at, slot] = block_row[Pi.indices], Pi.data
+    return F, rows, weights
 
 
 def _free_index(data: RestData) -> np.ndarray:

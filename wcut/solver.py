@@ -22,8 +22,9 @@ the modes it has not converged, an explicit extrapolation of the velocity: the b
 diverged after about 1 s (1 MPa) and 1.4 s (10 MPa), and a cold start cut at 20 iterations
 stayed finite but answered a different, too soft system. The cure is a solve that converges:
 the preconditioner is the sparse Cholesky factor of the rest system matrix, turned by the
-node rotations (``wcut.preconditioner``, Courtecuisse et al. 2010, 2014), with which the beam
-needs 1-4 iterations at 0.1-10 MPa, and the solve starts from zero, so a truncated solve (the
+node rotations (``wcut.preconditioner``, Courtecuisse et al. 2010, 2014; for quadratic elements
+the factor of the corners' linear system plus Jacobi), with which the beam needs 1-4
+iterations at 0.1-10 MPa (quadratic elements some ten), and the solve starts from zero, so a truncated solve (the
 cap) under-solves instead of extrapolating. The tangent is positive semi-definite: the
 rotation stiffness is projected to its tension part (``wcut.kernels.rotation``). A released
 body's energy then never grows from one step to the next, for Young's moduli 1 kPa-1 GPa,
@@ -129,8 +130,9 @@ class SolverCorotational:
             this fraction of the right-hand side's, ``r.D^-1 r <= tol^2 b.D^-1 b`` (D the
             diagonal of A); 0 always runs ``cg_iterations``. See the module's docstring for
             why 1e-2 is as accurate as a converged solve.
-        preconditioner: ``"cholesky"``, the rotated factor of the rest system matrix
-            (``wcut.preconditioner``; the default for tetrahedra), or ``"jacobi"`` (the default
+        preconditioner: ``"cholesky"``, the rotated factor of the rest system matrix (of its
+            projection on the corners, plus Jacobi, for quadratic elements;
+            ``wcut.preconditioner``; the default for tetrahedra), or ``"jacobi"`` (the default
             for shells, see :data:`PRECONDITIONERS`). A topological change carries the factor
             over (:meth:`rebuilt`).
         rotation_iterations: maximum polar-decomposition (Newton) iterations per element and
