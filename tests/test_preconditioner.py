@@ -102,6 +102,8 @@ def test_quadratic_elements_get_the_factor_of_the_corners_and_jacobi():
                     Pi[middle, np.searchsorted(corners, end)] = 0.5
     Pi3 = np.kron(Pi[free], np.eye(3))
     coarse = Pi3.T @ A.toarray() @ Pi3
+    assembled, _ = pc.coarse_system_matrix(pc.RestData.of(model), DT, 0.0, 0.0)
+    assert np.abs(assembled.toarray() - coarse).max() < 1e-9 * np.abs(coarse).max()
     r = np.random.default_rng(8).standard_normal((model.particle_count, 3))
     r[fixed] = 0.0
     inverse_diagonal = np.random.default_rng(9).uniform(0.5, 2.0, (model.particle_count, 3))

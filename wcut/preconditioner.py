@@ -164,14 +164,80 @@ def rest_system_matrix(data: RestData, dt: float, rayleigh_mass: float, rayleigh
             keep = (index[r] >= 0) & (index[c] >= 0)
             rows.append(r[keep]), cols.append(c[keep])
             blocks.append(b[keep] if pieces else scale * b[keep])
-    rows, cols = index[np.concatenate(rows)], index[np.concatenate(cols)]
-    blocks = np.concatenate(blocks).reshape(-1, 9)
-    unique, inverse = np.unique(rows * len(free) + cols, return_inverse=True)
+    return _block_matrix(index[np.concatenate(rows)], index[np.concatenate(cols)], np.concatenate(blocks),
+                         len(free)), free
+
+
+def _block_matrix(rows: np.ndarray, cols: np.ndarray, blocks: np.ndarray, n: int) -> sp.bsr_matrix:
+    """The (3n, 3n) block-sparse sum of 3x3 ``blocks`` at block ``(rows, cols)``."""
+    blocks = blocks.reshape(-1, 9)
+    unique, inverse = np.unique(rows * n + cols, return_inverse=True)
     summed = np.stack([np.bincount(inverse, weights=blocks[:, c], minlength=len(unique)) for c in range(9)], axis=1)
-    block_rows, block_cols = unique // len(free), unique % len(free)
-    indptr = np.searchsorted(block_rows, np.arange(len(free) + 1))
-    A = sp.bsr_matrix((summed.reshape(-1, 3, 3), block_cols, indptr), shape=(3 * len(free), 3 * len(free)))
-    return A, free
+    block_rows, block_cols = unique // n, unique % n
+    indptr = np.searchsorted(block_rows, np.arange(n + 1))
+    return sp.bsr_matrix((summed.reshape(-1, 3, 3), block_cols, indptr), shape=(3 * n, 3 * n))
+
+
+def _coarse_space(data: RestData, free: np.ndarray):
+    """Of a quadratic model: the interpolation ``Pi`` (free nodes x free corners, CSR) of
+    linear functions on the corners (1 at a corner, 1/2 at the middle of its edges), whose
+    columns are the free corners, and per node its column (-1: none)."""
+    from . import p2
+
+    tets = next(part[2] for part in data.parts if part[0] == "tet")
+    corner = np.full(data.node_count, -1, dtype=np.int64)
+    corners = np.unique(tets[:, :4])
+    corners = corners[~data.fixed[corners]]
+    corner[corners] = np.arange(len(corners))
+    middles, first = np.unique(tets[:, 4:].ravel(), return_index=True)
+    ends = tets[:, p2.EDGES].reshape(-1, 2)[first]  # the corners of each edge node, once
+    rows = np.concatenate([corners, np.repeat(middles, 2)])
+    cols = np.concatenate([corner[corners], corner[ends.ravel()]])
+    weights = np.concatenate([np.ones(len(corners)), np.full(ends.size, 0.5)])
+    row = np.full(data.node_count, -1, dtype=np.int64)
+    row[free] = np.arange(len(free))
+    keep = (row[rows] >= 0) & (cols >= 0)
+    return sp.csr_matrix((weights[keep], (row[rows[keep]], cols[keep])), shape=(len(free), len(corners))), corner
+
+
+def coarse_system_matrix(data: RestData, dt: float, rayleigh_mass: float, rayleigh_stiffness: float):
+    """Of a quadratic model: ``Pi^T A0 Pi`` (kg), the rest system matrix projected on the linear
+    functions of the free corners (:func:`_coarse_space`), without assembling ``A0``: an
+    element's stiffness is bilinear in its nodes' shape gradients, so its projection is the
+    stiffness of the projected gradients ``sum_a Pi_ac grad N_a`` (a fixed node's value is 0).
+    Returns the matrix and ``Pi`` (free nodes x free corners)."""
+    from . import p2
+
+    free = np.flatnonzero(~data.fixed)
+    Pi, corner = _coarse_space(data, free)
+    # the mass and springs: scalar matrices on the free nodes, projected
+    scalar = sp.diags((1.0 + dt * rayleigh_mass) * data.mass[free])
+    index = np.full(data.node_count, -1, dtype=np.int64)
+    index[free] = np.arange(len(free))
+    rows, cols, blocks = [], [], []
+    for part in data.parts:
+        if part[0] == "spring":
+            r, c, b = _spring_blocks(*part[1:3], part[3] * dt * dt)
+            keep = (index[r] >= 0) & (index[c] >= 0)
+            scalar = scalar + sp.csr_matrix((b[keep, 0, 0], (index[r[keep]], index[c[keep]])), shape=scalar.shape)
+            continue
+        _, _, tets, poses, stiffness = part
+        dN = p2.shape_gradients(p2.GAUSS_POINTS)  # (4, 10, 3) in xi
+        local = np.vstack([np.eye(4), 0.5 * (np.eye(4)[p2.EDGES[:, 0]] + np.eye(4)[p2.EDGES[:, 1]])])  # (10, 4)
+        for s in range(0, len(tets), 2048):
+            cells = tets[s:s + 2048]
+            grads = np.einsum("gaj,mgji->mgai", dN, poses[s:s + 2048]) * ~data.fixed[cells][:, None, :, None]
+            projected = np.einsum("mgai,ac->mgci", grads, local)
+            m = len(cells)
+            r, c, b = _stiffness_blocks(np.repeat(cells[:, :4], 4, axis=0), projected.reshape(m * 4, 4, 3),
+                                        stiffness[s:s + 2048].reshape(m * 4, 2))
+            keep = (corner[r] >= 0) & (corner[c] >= 0)
+            rows.append(corner[r[keep]]), cols.append(corner[c[keep]])
+            blocks.append((dt * dt + dt * rayleigh_stiffness) * b[keep])
+    projected = (Pi.T @ sp.csr_matrix(scalar) @ Pi).tocoo()
+    rows.append(projected.row), cols.append(projected.col)
+    blocks.append(projected.data[:, None, None] * np.eye(3))
+    return _block_matrix(np.concatenate(rows), np.concatenate(cols), np.concatenate(blocks), Pi.shape[1]), Pi
 
 
 # -- the factor --------------------------------------------------------------------------------
@@ -633,49 +699,23 @@ class _MemsetLaunch:
         self.array.zero_()
 
 
-def _coarse_space(data: RestData, free: np.ndarray):
-    """Of a quadratic model: the interpolation ``Pi`` (free nodes x free corners, CSR) of
-    linear functions on the corners (1 at a corner, 1/2 at the middle of its edges), whose
-    columns are the free corners; None for linear elements."""
-    tets = next((part[2] for part in data.parts if part[0] == "tet"), None)
-    if tets is None or tets.shape[1] == 4:
-        return None
-    from . import p2
-
-    corner = np.full(data.node_count, -1, dtype=np.int64)
-    corners = np.unique(tets[:, :4])
-    corners = corners[~data.fixed[corners]]
-    corner[corners] = np.arange(len(corners))
-    middles, first = np.unique(tets[:, 4:].ravel(), return_index=True)
-    ends = tets[:, p2.EDGES].reshape(-1, 2)[first]  # the corners of each edge node, once
-    rows = np.concatenate([corners, np.repeat(middles, 2)])
-    cols = np.concatenate([corner[corners], corner[ends.ravel()]])
-    weights = np.concatenate([np.ones(len(corners)), np.full(ends.size, 0.5)])
-    row = np.full(data.node_count, -1, dtype=np.int64)
-    row[free] = np.arange(len(free))
-    keep = (row[rows] >= 0) & (cols >= 0)
-    return sp.csr_matrix((weights[keep], (row[rows[keep]], cols[keep])), shape=(len(free), len(corners)))
-
-
 def _compute(data: RestData, key: tuple) -> tuple:
     """The factor of ``data``'s rest system matrix (for quadratic elements, of its Galerkin
     projection ``Pi^T A0 Pi`` on the linear functions of the corners, :func:`_coarse_space`), and
     per free node of ``data`` the factor's block rows it is interpolated from (two, -1 for none)
     with their weights."""
-    A, free = rest_system_matrix(data, *key)
-    Pi = _coarse_space(data, free)
-    if Pi is None:
-        Pi = sp.identity(len(free), format="csr")
+    if any(part[0] == "tet" and part[1] == 2 for part in data.parts):
+        A, Pi = coarse_system_matrix(data, *key)
     else:
-        Pi3 = sp.kron(Pi, sp.identity(3), format="csr")
-        A = sp.bsr_matrix((Pi3.T @ A.tocsr() @ Pi3).tocsr(), blocksize=(3, 3))
+        A, free = rest_system_matrix(data, *key)
+        Pi = sp.identity(len(free), format="csr")
     F = factor(A)
     block_row = np.empty(len(F.order), dtype=np.int64)
     block_row[F.order] = np.arange(len(F.order))
     counts = np.diff(Pi.indptr)
     slot = np.arange(Pi.nnz) - np.repeat(Pi.indptr[:-1], counts)
-    rows, weights = np.full((len(free), 2), -1, dtype=np.int32), np.zeros((len(free), 2), dtype=np.float32)
-    at = np.repeat(np.arange(len(free)), counts)
+    rows, weights = np.full((Pi.shape[0], 2), -1, dtype=np.int32), np.zeros((Pi.shape[0], 2), dtype=np.float32)
+    at = np.repeat(np.arange(Pi.shape[0]), counts)
     rows[at, slot], weights[at, slot] = block_row[Pi.indices], Pi.data
     return F, rows, weights
 
