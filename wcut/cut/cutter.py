@@ -34,9 +34,11 @@ surface, then disconnects; ``delete`` removes every crossed element; ``bielser``
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..errors import WcutError
 from ..kernels import topology as kernels
@@ -392,18 +394,26 @@ class Cutter:
         corners = self.coordinates()[self.topology.tets[slots]]  # (M, 4, 3)
         lower, upper = corners.min(axis=1), corners.max(axis=1)
         seg_lo, seg_hi = segments.min(axis=1), segments.max(axis=1)
-        pairs = np.all((seg_lo[None] <= upper[:, None] + self.tolerance)
-                       & (seg_hi[None] >= lower[:, None] - self.tolerance), axis=2)
-        m, b = np.nonzero(pairs)
+        # the pairs whose boxes meet, among those whose box centres are near enough (a k-d tree:
+        # testing all M x B pairs took 13-20 ms per increment on the organ, M ~2800, B ~80)
+        centre, half = 0.5 * (upper + lower), 0.5 * np.linalg.norm(upper - lower, axis=1)
+        seg_centre, seg_half = 0.5 * (seg_hi + seg_lo), 0.5 * np.linalg.norm(seg_hi - seg_lo, axis=1)
+        near = cKDTree(centre).query_ball_point(seg_centre, seg_half + half.max() + 2.0 * self.tolerance)
+        counts = np.fromiter(map(len, near), np.int64, len(near))
+        b = np.repeat(np.arange(len(segments)), counts)
+        m = np.fromiter(itertools.chain.from_iterable(near), np.int64, counts.sum())
+        meets = np.all((seg_lo[b] <= upper[m] + self.tolerance) & (seg_hi[b] >= lower[m] - self.tolerance), axis=1)
+        m, b = m[meets], b[meets]
         if not len(m):
             return crossed
-        inverse = np.linalg.inv(np.transpose(corners[:, 1:] - corners[:, :1], (0, 2, 1)))
+        used, at = np.unique(m, return_inverse=True)
+        inverse = np.linalg.inv(np.transpose(corners[used, 1:] - corners[used, :1], (0, 2, 1)))
 
-        def bary(points, rows):
-            local = np.einsum("kij,kj->ki", inverse[rows], points - corners[rows, 0])
+        def bary(points):
+            local = np.einsum("kij,kj->ki", inverse[at], points - corners[m, 0])
             return np.concatenate([1.0 - local.sum(axis=1, keepdims=True), local], axis=1)
 
-        start, end = bary(segments[b, 0], m), bary(segments[b, 1], m)
+        start, end = bary(segments[b, 0]), bary(segments[b, 1])
         slack = self.tolerance / np.linalg.norm(upper - lower, axis=1)[m, None]  # relative
         rate = end - start
         with np.errstate(divide="ignore", invalid="ignore"):
