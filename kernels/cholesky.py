@@ -22,8 +22,11 @@ The triangular solves (:func:`block_forward`, :func:`block_backward`) run on one
 a row needs the rows before it. On the CPU, where Warp runs threads one after another anyway,
 that costs nothing; on CUDA the kernels are correct but serial. The rows of two disjoint
 subtrees of the factor's elimination tree do not use each other's, so on the CPU the two run
-on two threads at once (``wcut.preconditioner``), the rows above them after (forward) or
-before (backward).
+on two threads at once (``wcut.preconditioner``). The rows above them (the top separators)
+hold most of their blocks in the subtrees' columns; each thread also takes those of its
+subtree (:func:`block_forward_gather` after its forward pass, :func:`block_backward_scatter`
+before its backward pass), and only the blocks among the top rows run alone
+(:func:`block_forward_top`, :func:`block_backward_top`).
 """
 
 import warp as wp
@@ -121,6 +124,89 @@ def block_backward(
         x = wp.transpose(diagonal_inverse[row]) * t[row]
         t[row] = x
         for b in range(row_start[row], row_start[row + 1]):
+            c = block_column[b]
+            t[c] = t[c] - wp.transpose(blocks[b]) * x
+
+
+@wp.kernel
+def block_forward_gather(
+    block_column: wp.array(dtype=wp.int32),
+    blocks: wp.array(dtype=wp.mat33),
+    segment_start: wp.array(dtype=wp.int32),
+    segment_end: wp.array(dtype=wp.int32),
+    t: wp.array(dtype=wp.vec3),
+    acc: wp.array(dtype=wp.vec3),
+):
+    """One thread: ``acc[k] = sum L_b t[column b]`` over the blocks ``segment_start[k] ..
+    segment_end[k] - 1`` of top row k (blocks in one subtree's columns, already solved)."""
+    for k in range(acc.shape[0]):
+        sum = wp.vec3(0.0)
+        for b in range(segment_start[k], segment_end[k]):
+            sum = sum + blocks[b] * t[block_column[b]]
+        acc[k] = sum
+
+
+@wp.kernel
+def block_forward_top(
+    row_start: wp.array(dtype=wp.int32),
+    block_column: wp.array(dtype=wp.int32),
+    blocks: wp.array(dtype=wp.mat33),
+    diagonal_inverse: wp.array(dtype=wp.mat33),
+    top_start: wp.array(dtype=wp.int32),
+    lo: int,
+    acc_a: wp.array(dtype=wp.vec3),
+    acc_b: wp.array(dtype=wp.vec3),
+    t: wp.array(dtype=wp.vec3),
+):
+    """One thread: forward substitution over the top rows ``lo..`` given the sums of their
+    blocks in the two subtrees' columns (``acc_a``, ``acc_b``, :func:`block_forward_gather`);
+    ``top_start[k]`` is the first block of row ``lo + k`` in a top column."""
+    for k in range(acc_a.shape[0]):
+        row = lo + k
+        acc = t[row] - acc_a[k] - acc_b[k]
+        for b in range(top_start[k], row_start[row + 1]):
+            acc = acc - blocks[b] * t[block_column[b]]
+        t[row] = diagonal_inverse[row] * acc
+
+
+@wp.kernel
+def block_backward_top(
+    row_start: wp.array(dtype=wp.int32),
+    block_column: wp.array(dtype=wp.int32),
+    blocks: wp.array(dtype=wp.mat33),
+    diagonal_inverse: wp.array(dtype=wp.mat33),
+    top_start: wp.array(dtype=wp.int32),
+    lo: int,
+    t: wp.array(dtype=wp.vec3),
+):
+    """One thread: backward substitution over the top rows ``lo..n-1``, last to first, each
+    row scattered to the top columns only (the subtrees' columns: :func:`block_backward_scatter`)."""
+    count = top_start.shape[0]
+    for j in range(count):
+        k = count - 1 - j
+        row = lo + k
+        x = wp.transpose(diagonal_inverse[row]) * t[row]
+        t[row] = x
+        for b in range(top_start[k], row_start[row + 1]):
+            c = block_column[b]
+            t[c] = t[c] - wp.transpose(blocks[b]) * x
+
+
+@wp.kernel
+def block_backward_scatter(
+    block_column: wp.array(dtype=wp.int32),
+    blocks: wp.array(dtype=wp.mat33),
+    segment_start: wp.array(dtype=wp.int32),
+    segment_end: wp.array(dtype=wp.int32),
+    lo: int,
+    t: wp.array(dtype=wp.vec3),
+):
+    """One thread: ``t[column b] -= L_b^T t[lo + k]`` over the blocks ``segment_start[k] ..
+    segment_end[k] - 1`` of each top row k (solved): the top rows' share of one subtree's
+    backward substitution."""
+    for k in range(segment_start.shape[0]):
+        x = t[lo + k]
+        for b in range(segment_start[k], segment_end[k]):
             c = block_column[b]
             t[c] = t[c] - wp.transpose(blocks[b]) * x
 

@@ -280,7 +280,8 @@ def test_the_quadratic_beam_converges_in_few_iterations_at_any_stiffness():
 
 def test_two_subtrees_solved_on_two_threads_equal_one_thread(monkeypatch):
     """The factor's rows split into two subtrees that use none of each other's rows, solved on
-    two threads at once: the same steps bit for bit as one thread's solves."""
+    two threads at once with the top rows' blocks in their columns: the same steps bit for bit
+    as one thread's solves, and the inverse of the rest matrix."""
     mesh = wcut.beam(4, 4, 12, size=(0.04, 0.04, 0.12))
     fixed = mesh.vertices_in_box((-1, -1, -1), (1, 1, 1e-9))
     model = Model(mesh, youngs_modulus=1e6, gravity=(0.0, -9.81, 0.0), fixed=fixed)
@@ -303,6 +304,15 @@ def test_two_subtrees_solved_on_two_threads_equal_one_thread(monkeypatch):
     assert (factor.block_column[in_b] >= a).all()  # the second subtree never reads the first's rows
     assert (factor.block_column[rows < a] < a).all()
     assert np.array_equal(ends[1], ends[10 ** 9])
+    # the solves by parts (subtrees, then the top rows' blocks in their columns) invert the matrix
+    P = solver.preconditioner
+    P.node_rotation.assign(np.tile([0.0, 0.0, 0.0, 1.0], (model.particle_count, 1)).astype(np.float32))
+    A, free = pc.rest_system_matrix(pc.RestData.of(model), 1 / 60, 0.0, 0.0)
+    r = np.random.default_rng(10).standard_normal((model.particle_count, 3))
+    r[model.particle_fixed.numpy() != 0] = 0.0
+    expected = np.zeros_like(r)
+    expected[free] = spla.spsolve(A.tocsc(), r[free].ravel()).reshape(-1, 3)
+    assert np.abs(P.apply(r) - expected).max() < 1e-4 * np.abs(expected).max()
 
 
 def test_a_refresh_is_taken_at_once_after_a_step_the_old_factor_served_badly(monkeypatch):

@@ -558,9 +558,10 @@ class RotatedCholesky:
 
     def record_apply(self, chunk: int, counter, inv_diagonal, r, z, rz, team=None) -> list:
         """The recorded launches of ``z = P^-1 r`` and ``rz[counter] = r.z``; the triangular
-        solves of two subtrees on two threads of ``team`` when :meth:`concurrent`."""
+        solves of two subtrees (and the top rows' blocks in their columns) on two threads of
+        ``team`` when :meth:`concurrent`."""
         m, d = self.model, self.model.device
-        row_start, block_column, blocks, diagonal_inverse, t = self._arrays
+        row_start, block_column, blocks, diagonal_inverse, t, top_arrays = self._arrays
         node_threads = (m.particle_count + chunk - 1) // chunk
 
         def solve(kernel, lo, hi):
@@ -570,15 +571,31 @@ class RotatedCholesky:
         n = len(self._factor.order)
         patch_t = t
         if self._patch is not None:  # (small: solved on one thread, after the factor's forward pass)
-            patch_rows, patch_columns, patch_blocks, patch_diagonal, patch_t = self._patch[1]
+            patch_rows, patch_columns, patch_blocks, patch_diagonal, patch_t, _ = self._patch[1]
             patch_args = [patch_rows, patch_columns, patch_blocks, patch_diagonal, 0, len(self._patch[0].order)]
             patch_solves = [wp.launch(kernel, 1, device=d, record_cmd=True, inputs=patch_args, outputs=[patch_t])
                             for kernel in (cholesky.block_forward, cholesky.block_backward)]
-        if self.concurrent(team):
+        if self._factor.subtrees is not None:  # (the same sums on one thread or two: the same bits)
             a, b = self._factor.subtrees
-            solves = [_Concurrent(team, [solve(cholesky.block_forward, 0, a), solve(cholesky.block_forward, a, b)]),
-                      solve(cholesky.block_forward, b, n), solve(cholesky.block_backward, b, n),
-                      _Concurrent(team, [solve(cholesky.block_backward, 0, a), solve(cholesky.block_backward, a, b)])]
+            segments, sums = top_arrays
+
+            def gather(k):  # the top rows' blocks in subtree k's columns, after its forward pass
+                return wp.launch(cholesky.block_forward_gather, 1, device=d, record_cmd=True,
+                                 inputs=[block_column, blocks, segments[k], segments[k + 1], t], outputs=[sums[k]])
+
+            def scatter(k):  # and before its backward pass
+                return wp.launch(cholesky.block_backward_scatter, 1, device=d, record_cmd=True,
+                                 inputs=[block_column, blocks, segments[k], segments[k + 1], b], outputs=[t])
+
+            top = [row_start, block_column, blocks, diagonal_inverse, segments[2], b]
+            together = _Concurrent if self.concurrent(team) else _Sequence
+            solves = [together([_Sequence([solve(cholesky.block_forward, 0, a), gather(0)]),
+                                _Sequence([solve(cholesky.block_forward, a, b), gather(1)])], team),
+                      wp.launch(cholesky.block_forward_top, 1, device=d, record_cmd=True,
+                                inputs=[*top, *sums], outputs=[t]),
+                      wp.launch(cholesky.block_backward_top, 1, device=d, record_cmd=True, inputs=top, outputs=[t]),
+                      together([_Sequence([scatter(0), solve(cholesky.block_backward, 0, a)]),
+                                _Sequence([scatter(1), solve(cholesky.block_backward, a, b)])], team)]
         else:
             solves = [solve(cholesky.block_forward, 0, n), solve(cholesky.block_backward, 0, n)]
         if self._patch is not None:
@@ -610,13 +627,18 @@ class RotatedCholesky:
 
 
 def _device_arrays(factor: BlockFactor, device) -> tuple:
-    """The arrays of ``factor`` that ``wcut.kernels.cholesky`` reads (float32), and its
-    right-hand side."""
+    """The arrays of ``factor`` that ``wcut.kernels.cholesky`` reads (float32), its right-hand
+    side, and where it has two subtrees the top rows' segments (:func:`_top_segments`) and
+    the sums of their blocks in each subtree's columns (else None)."""
+    top = None
+    if factor.subtrees is not None:
+        top = ([wp.array(bounds, dtype=wp.int32, device=device) for bounds in _top_segments(factor)],
+               [wp.zeros(len(factor.order) - factor.subtrees[1], dtype=wp.vec3, device=device) for _ in range(2)])
     return (wp.array(factor.row_start, dtype=wp.int32, device=device),
             wp.array(factor.block_column, dtype=wp.int32, device=device),
             wp.array(factor.blocks.astype(np.float32), dtype=wp.mat33, device=device),
             wp.array(factor.diagonal_inverse.astype(np.float32), dtype=wp.mat33, device=device),
-            wp.zeros(len(factor.order), dtype=wp.vec3, device=device))
+            wp.zeros(len(factor.order), dtype=wp.vec3, device=device), top)
 
 
 def _with_neighbours(model, nodes: np.ndarray) -> np.ndarray:
@@ -674,11 +696,36 @@ def _carried_rotations(rotations: np.ndarray, change) -> np.ndarray:
     return out
 
 
+def _top_segments(factor: BlockFactor) -> tuple:
+    """Of the rows ``b..`` above the two subtrees (:attr:`BlockFactor.subtrees` ``(a, b)``): per
+    row, where its blocks in the first subtree's columns start, where those in the second's
+    start, and where those in the top rows' own columns start (a row's columns ascend)."""
+    a, b = factor.subtrees
+    n = len(factor.order)
+    start = factor.row_start[b:n].astype(np.int64)
+    columns = factor.block_column[start[0]:factor.row_start[n]] if n > b else np.zeros(0, np.int32)
+    row = np.repeat(np.arange(n - b), np.diff(factor.row_start[b:n + 1]))
+    below_a = np.bincount(row, weights=columns < a, minlength=n - b).astype(np.int64)
+    below_b = np.bincount(row, weights=columns < b, minlength=n - b).astype(np.int64)
+    return start, start + below_a, start + below_b
+
+
+class _Sequence:
+    """Recorded launches run one after another (a part of a :class:`_Concurrent`)."""
+
+    def __init__(self, commands: list, team=None):
+        self.commands, self.device = commands, commands[0].device
+
+    def launch(self):
+        for command in self.commands:
+            command.launch()
+
+
 class _Concurrent:
     """Recorded launches run at once on the threads of a ``wcut.split_launch.ThreadTeam`` (one
     after another inside a graph capture)."""
 
-    def __init__(self, team, commands: list):
+    def __init__(self, commands: list, team):
         self.team, self.commands = team, commands
 
     def launch(self):
