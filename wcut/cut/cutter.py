@@ -239,7 +239,7 @@ class Cutter:
         if mean_edge_length is None:
             mean_edge_length = topology.to_mesh().mean_edge_length()
         self.mean_edge_length = float(mean_edge_length)
-        self._margin = 2.0 * self._longest_edge()
+        self._longest = self._longest_edge()  # (m, rest; grown by the elements cuts make)
         #: vertices this cutter inserted by 1-4 splits, and their copies when a cut duplicated
         #: them: one on the surface serves again as the split vertex of its element's pieces when
         #: a later cut reaches them (thesis 5.1.1). Every copy counts: which copy keeps the
@@ -255,10 +255,19 @@ class Cutter:
         self._swept_triangles: list[np.ndarray] = []
         self._rest = False
 
-    def _longest_edge(self) -> float:
-        tets = self.topology.tets[self.topology.live_tets()]
+    def _longest_edge(self, slots: np.ndarray | None = None) -> float:
+        """The longest rest edge (m) of the elements ``slots`` (default: all)."""
+        tets = self.topology.tets[self.topology.live_tets() if slots is None else slots]
         x = self.topology.rest_positions
-        return max(float(np.linalg.norm(x[tets[:, i]] - x[tets[:, j]], axis=1).max()) for i, j in TET_EDGES)
+        return max(float(np.linalg.norm(x[tets[:, i]] - x[tets[:, j]], axis=1).max(initial=0.0)) for i, j in TET_EDGES)
+
+    @property
+    def _margin(self) -> float:
+        """How far (m) from a surface a vertex of an element it crosses may lie: the longest
+        edge in the rest configuration; twice that in the current one, which stretches. (Twice
+        it in the rest configuration too gave a blade's increment on the organ 2700 of its 4900
+        elements as candidates, against some 1500.)"""
+        return self._longest if self._rest else 2.0 * self._longest
 
     # ------------------------------------------------------------------ public
     def cut(self, surface: CutSurface, bounds=None, *, progressive: bool = False, rest: bool = False) -> CutResult:
@@ -310,6 +319,9 @@ class Cutter:
                 self._improve(surface, stats)
         finally:
             change = topo.end_change()
+        changed = change.rest_changed_elements()
+        if len(changed):  # (a flip may join vertices farther apart than any edge before)
+            self._longest = max(self._longest, self._longest_edge(topo.live_tets()[changed]))
         return CutResult(change, stats)
 
     # ---------------------------------------------------------------- helpers
@@ -340,7 +352,7 @@ class Cutter:
 
     def _candidates(self, surface: CutSurface, bounds) -> np.ndarray:
         """Live elements with a vertex near the surface (within the longest edge of a plane,
-        or inside its box grown by twice the longest edge): every element the surface
+        or inside its box grown by the longest edge): every element the surface
         crosses: one vectorised pass over the vertices, then their elements by adjacency."""
         topo = self.topology
         x = self.coordinates()

@@ -407,7 +407,15 @@ class TetTopology:
         weights = bary[np.arange(len(p)), best]  # (P, 4)
         out = np.einsum("pk,pkj->pj", weights, rest[self.tets[slots[best]]])
         if not inside.all():
-            out[~inside] = self._rest_points_outside(p[~inside], slots)
+            # the nearest boundary point of an outside point is no farther than any element's
+            # nearest point: elements whose box lies farther than the nearest box plus the
+            # longest box diagonal have no face that could be nearer
+            outside = p[~inside]
+            gap = np.linalg.norm(np.maximum(0.0, np.maximum(lower[near][None] - outside[:, None],
+                                                            outside[:, None] - upper[near][None])), axis=2)
+            diagonal = float(np.linalg.norm(upper[near] - lower[near], axis=1).max())
+            keep = (gap <= gap.min(axis=1, keepdims=True) + diagonal).any(axis=0)
+            out[~inside] = self._rest_points_outside(outside, slots[keep])
         return out
 
     def _rest_points_outside(self, p: np.ndarray, slots: np.ndarray) -> np.ndarray:
