@@ -223,14 +223,13 @@ def coarse_system_matrix(data: RestData, dt: float, rayleigh_mass: float, raylei
             continue
         _, _, tets, poses, stiffness = part
         dN = p2.shape_gradients(p2.GAUSS_POINTS)  # (4, 10, 3) in xi
-        local = np.vstack([np.eye(4), 0.5 * (np.eye(4)[p2.EDGES[:, 0]] + np.eye(4)[p2.EDGES[:, 1]])])  # (10, 4)
         for s in range(0, len(tets), 2048):
-            cells = tets[s:s + 2048]
-            grads = np.einsum("gaj,mgji->mgai", dN, poses[s:s + 2048]) * ~data.fixed[cells][:, None, :, None]
-            projected = np.einsum("mgai,ac->mgci", grads, local)
+            cells, chunk = tets[s:s + 2048], slice(s, s + 2048)
+            grads = np.einsum("gaj,mgji->mgai", dN, poses[chunk]) * ~data.fixed[cells][:, None, :, None]
+            projected = np.einsum("mgai,ac->mgci", grads, p2.NODE_POINTS)  # node a's value of corner c's function
             m = len(cells)
             r, c, b = _stiffness_blocks(np.repeat(cells[:, :4], 4, axis=0), projected.reshape(m * 4, 4, 3),
-                                        stiffness[s:s + 2048].reshape(m * 4, 2))
+                                        stiffness[chunk].reshape(m * 4, 2))
             keep = (corner[r] >= 0) & (corner[c] >= 0)
             rows.append(corner[r[keep]]), cols.append(corner[c[keep]])
             blocks.append((dt * dt + dt * rayleigh_stiffness) * b[keep])
@@ -517,8 +516,8 @@ class RotatedCholesky:
     def carried(self, model, change) -> "RotatedCholesky":
         """This preconditioner for ``model``, made from this one's by ``change`` (a
         :class:`wcut.topology.TopologyChange`): the factor of before, with the vertices of the
-        elements the change touched left out (Jacobi), and a refresh of the factor started.
-        This object must not be used afterwards."""
+        elements the change touched left out (a patch serves them from the next step), and a
+        refresh of the factor started. This object must not be used afterwards."""
         out = RotatedCholesky.__new__(RotatedCholesky)
         out.model, out.background = model, self.background
         d = model.device
@@ -570,7 +569,7 @@ class RotatedCholesky:
 
         n = len(self._factor.order)
         patch_t = t
-        if self._patch is not None:  # (small: solved on one thread, after the factor's forward pass)
+        if self._patch is not None:  # (small: solved on one thread, after the factor)
             patch_rows, patch_columns, patch_blocks, patch_diagonal, patch_t, _ = self._patch[1]
             patch_args = [patch_rows, patch_columns, patch_blocks, patch_diagonal, 0, len(self._patch[0].order)]
             patch_solves = [wp.launch(kernel, 1, device=d, record_cmd=True, inputs=patch_args, outputs=[patch_t])

@@ -265,8 +265,8 @@ class Cutter:
     def _margin(self) -> float:
         """How far (m) from a surface a vertex of an element it crosses may lie: the longest
         edge in the rest configuration; twice that in the current one, which stretches. (Twice
-        it in the rest configuration too gave a blade's increment on the organ 2700 of its 4900
-        elements as candidates, against some 1500.)"""
+        it in the rest configuration too gave a blade's late increments on the organ 2700-2900
+        of its 4900 elements as candidates, against 1400-1570.)"""
         return self._longest if self._rest else 2.0 * self._longest
 
     # ------------------------------------------------------------------ public
