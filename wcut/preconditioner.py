@@ -72,8 +72,8 @@ def _stiffness_blocks(nodes: np.ndarray, gradients: np.ndarray, coefficients: np
     Q, k = nodes.shape
     vmu, vlam = coefficients[:, 0, None, None, None, None], coefficients[:, 1, None, None, None, None]
     dots = np.einsum("qai,qbi->qab", gradients, gradients)[:, :, :, None, None]
-    blocks = (vmu * dots * np.eye(3) + vmu * np.einsum("qbi,qaj->qabij", gradients, gradients)
-              + vlam * np.einsum("qai,qbj->qabij", gradients, gradients))
+    outer = gradients[:, :, None, :, None] * gradients[:, None, :, None, :]  # [q, a, b] = g_a g_b^T
+    blocks = vmu * dots * np.eye(3) + vmu * np.swapaxes(outer, 3, 4) + vlam * outer
     rows = np.repeat(nodes, k, axis=1).ravel()
     cols = np.tile(nodes, (1, k)).ravel()
     return rows, cols, blocks.reshape(-1, 3, 3)
@@ -280,8 +280,9 @@ class BlockFactor:
         return len(self.blocks)
 
 
-def factor(A: sp.bsr_matrix) -> BlockFactor:
-    """The block Cholesky factor of the symmetric positive definite block matrix ``A``.
+def factor(A: sp.bsr_matrix, split: bool = True) -> BlockFactor:
+    """The block Cholesky factor of the symmetric positive definite block matrix ``A``; with
+    ``split``, its two largest subtrees (:attr:`BlockFactor.subtrees`), else none.
 
     Raises :class:`SimulationError` when ``A`` is not positive definite (a pivot <= 0)."""
     n = A.shape[0] // 3
@@ -314,7 +315,7 @@ def factor(A: sp.bsr_matrix) -> BlockFactor:
     block_column = Lb.indices[lower].astype(np.int32)
     return BlockFactor(order=order[node_perm], row_start=row_start.astype(np.int32), block_column=block_column,
                        blocks=Lb.data[lower], diagonal_inverse=np.linalg.inv(diag_blocks),
-                       subtrees=_subtree_split(row_start, block_column))
+                       subtrees=_subtree_split(row_start, block_column) if split else None)
 
 
 def _subtree_split(row_start: np.ndarray, block_column: np.ndarray) -> tuple[int, int] | None:
@@ -507,7 +508,7 @@ class RotatedCholesky:
         self._patch = None
         if len(outside):
             nodes = _with_neighbours(m, outside)
-            patch = factor(rest_system_matrix(RestData.of(m), *self._factored_for, nodes=nodes)[0])
+            patch = factor(rest_system_matrix(RestData.of(m), *self._factored_for, nodes=nodes)[0], split=False)
             positions[nodes[patch.order]] = np.arange(len(nodes), dtype=np.int32)
             self._patch = (patch, _device_arrays(patch, d))
         self.patch_position.assign(positions)
