@@ -421,7 +421,19 @@ class TriangleSurface(CutSurface):
         return dist, idx
 
     def distance(self, points, limit: float = np.inf) -> np.ndarray:
-        return self.nearest(points, limit)[0]
+        p = _array(points, (-1, 3), "points")
+        if not np.isfinite(limit) or len(p) * len(self) <= _ALL_PAIRS:
+            return self.nearest(p, limit)[0]
+        # within a finite limit the triangles near enough are the pairs within it: the same
+        # distances as :meth:`nearest` without its search for an upper bound first (on a
+        # blade's increments, most points lie farther than the on-surface tolerance)
+        dist = np.full(len(p), np.inf)
+        rows, j = self._near_pairs(p, np.full(len(p), float(limit)))
+        if len(rows):
+            v = self._v[j]
+            np.minimum.at(dist, rows, _point_triangle_distance(p[rows], v[:, 0], v[:, 1], v[:, 2], self.normals[j]))
+        dist[dist > limit] = np.inf
+        return dist
 
     def tangent_planes(self, points) -> tuple[np.ndarray, np.ndarray]:
         _, j = self.nearest(points)
