@@ -26,7 +26,8 @@ on two threads at once (``wcut.preconditioner``). The rows above them (the top s
 hold most of their blocks in the subtrees' columns; each thread also takes those of its
 subtree (:func:`block_forward_gather` after its forward pass, :func:`block_backward_scatter`
 before its backward pass), and only the blocks among the top rows run alone
-(:func:`block_forward_top`, :func:`block_backward_top`).
+(:func:`block_forward_top`, and :func:`block_backward` from each top row's first block in a
+top column).
 """
 
 import warp as wp
@@ -109,21 +110,24 @@ def block_forward(
 @wp.kernel
 def block_backward(
     row_start: wp.array(dtype=wp.int32),
+    first_block: wp.array(dtype=wp.int32),
     block_column: wp.array(dtype=wp.int32),
     blocks: wp.array(dtype=wp.mat33),
     diagonal_inverse: wp.array(dtype=wp.mat33),
     lo: int,
-    hi: int,
     t: wp.array(dtype=wp.vec3),
 ):
-    """One thread: backward substitution ``L^T x = y`` in place over the block rows
-    ``hi-1..lo``, last to first, each row scattered to the rows it uses (the rows after ``hi``
-    already done)."""
-    for k in range(hi - lo):
-        row = hi - 1 - k
+    """One thread: backward substitution ``L^T x = y`` in place over the block rows ``lo ..
+    lo + len(first_block) - 1``, last to first, each row scattered to the rows of its blocks
+    ``first_block[k] .. row_start[row + 1] - 1`` (``row_start[lo:]`` for all of them; the rows
+    after, and the rows of the blocks left out, already done)."""
+    count = first_block.shape[0]
+    for j in range(count):
+        k = count - 1 - j
+        row = lo + k
         x = wp.transpose(diagonal_inverse[row]) * t[row]
         t[row] = x
-        for b in range(row_start[row], row_start[row + 1]):
+        for b in range(first_block[k], row_start[row + 1]):
             c = block_column[b]
             t[c] = t[c] - wp.transpose(blocks[b]) * x
 
@@ -167,29 +171,6 @@ def block_forward_top(
         for b in range(top_start[k], row_start[row + 1]):
             acc = acc - blocks[b] * t[block_column[b]]
         t[row] = diagonal_inverse[row] * acc
-
-
-@wp.kernel
-def block_backward_top(
-    row_start: wp.array(dtype=wp.int32),
-    block_column: wp.array(dtype=wp.int32),
-    blocks: wp.array(dtype=wp.mat33),
-    diagonal_inverse: wp.array(dtype=wp.mat33),
-    top_start: wp.array(dtype=wp.int32),
-    lo: int,
-    t: wp.array(dtype=wp.vec3),
-):
-    """One thread: backward substitution over the top rows ``lo..n-1``, last to first, each
-    row scattered to the top columns only (the subtrees' columns: :func:`block_backward_scatter`)."""
-    count = top_start.shape[0]
-    for j in range(count):
-        k = count - 1 - j
-        row = lo + k
-        x = wp.transpose(diagonal_inverse[row]) * t[row]
-        t[row] = x
-        for b in range(top_start[k], row_start[row + 1]):
-            c = block_column[b]
-            t[c] = t[c] - wp.transpose(blocks[b]) * x
 
 
 @wp.kernel

@@ -564,17 +564,24 @@ class RotatedCholesky:
         row_start, block_column, blocks, diagonal_inverse, t, top_arrays = self._arrays
         node_threads = (m.particle_count + chunk - 1) // chunk
 
-        def solve(kernel, lo, hi):
-            return wp.launch(kernel, 1, device=d, record_cmd=True,
+        def forward(lo, hi):
+            return wp.launch(cholesky.block_forward, 1, device=d, record_cmd=True,
                              inputs=[row_start, block_column, blocks, diagonal_inverse, lo, hi], outputs=[t])
+
+        def backward(lo, hi, first_block=None):  # (rows lo..hi-1 from their first blocks)
+            first_block = row_start[lo:hi] if first_block is None else first_block
+            return wp.launch(cholesky.block_backward, 1, device=d, record_cmd=True,
+                             inputs=[row_start, first_block, block_column, blocks, diagonal_inverse, lo], outputs=[t])
 
         n = len(self._factor.order)
         patch_t = t
         if self._patch is not None:  # (small: solved on one thread, after the factor)
             patch_rows, patch_columns, patch_blocks, patch_diagonal, patch_t, _ = self._patch[1]
-            patch_args = [patch_rows, patch_columns, patch_blocks, patch_diagonal, 0, len(self._patch[0].order)]
-            patch_solves = [wp.launch(kernel, 1, device=d, record_cmd=True, inputs=patch_args, outputs=[patch_t])
-                            for kernel in (cholesky.block_forward, cholesky.block_backward)]
+            patch_solves = [
+                wp.launch(cholesky.block_forward, 1, device=d, record_cmd=True, outputs=[patch_t],
+                          inputs=[patch_rows, patch_columns, patch_blocks, patch_diagonal, 0, len(self._patch[0].order)]),
+                wp.launch(cholesky.block_backward, 1, device=d, record_cmd=True, outputs=[patch_t],
+                          inputs=[patch_rows, patch_rows[:-1], patch_columns, patch_blocks, patch_diagonal, 0])]
         if self._factor.subtrees is not None:  # (the same sums on one thread or two: the same bits)
             a, b = self._factor.subtrees
             segments, sums = top_arrays
@@ -587,17 +594,14 @@ class RotatedCholesky:
                 return wp.launch(cholesky.block_backward_scatter, 1, device=d, record_cmd=True,
                                  inputs=[block_column, blocks, segments[k], segments[k + 1], b], outputs=[t])
 
-            top = [row_start, block_column, blocks, diagonal_inverse, segments[2], b]
             together = _Concurrent if self.concurrent(team) else _Sequence
-            solves = [together([_Sequence([solve(cholesky.block_forward, 0, a), gather(0)]),
-                                _Sequence([solve(cholesky.block_forward, a, b), gather(1)])], team),
-                      wp.launch(cholesky.block_forward_top, 1, device=d, record_cmd=True,
-                                inputs=[*top, *sums], outputs=[t]),
-                      wp.launch(cholesky.block_backward_top, 1, device=d, record_cmd=True, inputs=top, outputs=[t]),
-                      together([_Sequence([scatter(0), solve(cholesky.block_backward, 0, a)]),
-                                _Sequence([scatter(1), solve(cholesky.block_backward, a, b)])], team)]
+            solves = [together([_Sequence([forward(0, a), gather(0)]), _Sequence([forward(a, b), gather(1)])], team),
+                      wp.launch(cholesky.block_forward_top, 1, device=d, record_cmd=True, outputs=[t],
+                                inputs=[row_start, block_column, blocks, diagonal_inverse, segments[2], b, *sums]),
+                      backward(b, n, first_block=segments[2]),
+                      together([_Sequence([scatter(0), backward(0, a)]), _Sequence([scatter(1), backward(a, b)])], team)]
         else:
-            solves = [solve(cholesky.block_forward, 0, n), solve(cholesky.block_backward, 0, n)]
+            solves = [forward(0, n), backward(0, n)]
         if self._patch is not None:
             solves += patch_solves
         return [
