@@ -112,8 +112,11 @@ class RestData:
         return cls(model.particle_count, model.particle_fixed.numpy() != 0, f64(model.particle_mass), parts)
 
 
-def _element_blocks(part, chunk: int = 2048):
-    """Yield (rows, cols, blocks) of the stiffness of one element family of :class:`RestData`."""
+def _element_blocks(part, chunk: int = 2048, fixed: np.ndarray | None = None):
+    """Yield (rows, cols, blocks) of the stiffness of one element family of :class:`RestData`.
+    With ``fixed`` (the fixed-node mask, N bool) a quadratic family's stiffness is
+    projected on the linear functions of its corners (:func:`coarse_system_matrix`): rows and
+    columns are corners, and a fixed node's value is 0."""
     if part[0] == "tet" and part[1] == 1:
         _, _, tets, poses, stiffness = part
         grads = np.concatenate([poses, -poses.sum(axis=1, keepdims=True)], axis=1)  # rows grad N_0..3
@@ -125,9 +128,13 @@ def _element_blocks(part, chunk: int = 2048):
         _, _, tets, poses, stiffness = part
         dN = p2.shape_gradients(p2.GAUSS_POINTS)  # (4, 10, 3) in xi
         for s in range(0, len(tets), chunk):
+            cells = tets[s:s + chunk]
             grads = np.einsum("gaj,mgji->mgai", dN, poses[s:s + chunk])  # grad_X N = J^-T grad_xi N
-            m = len(grads)
-            yield _stiffness_blocks(np.repeat(tets[s:s + chunk], 4, axis=0), grads.reshape(m * 4, 10, 3),
+            if fixed is not None:  # corner c's function is NODE_POINTS[a, c] at node a
+                grads = np.einsum("mgai,ac->mgci", grads * ~fixed[cells][:, None, :, None], p2.NODE_POINTS)
+                cells = cells[:, :4]
+            m, k = cells.shape
+            yield _stiffness_blocks(np.repeat(cells, 4, axis=0), grads.reshape(m * 4, k, 3),
                                     stiffness[s:s + chunk].reshape(m * 4, 2))
     else:
         raise ValueError(f"unknown part {part[0]!r}")
@@ -206,8 +213,6 @@ def coarse_system_matrix(data: RestData, dt: float, rayleigh_mass: float, raylei
     element's stiffness is bilinear in its nodes' shape gradients, so its projection is the
     stiffness of the projected gradients ``sum_a Pi_ac grad N_a`` (a fixed node's value is 0).
     Returns the matrix and ``Pi`` (free nodes x free corners)."""
-    from . import p2
-
     free = np.flatnonzero(~data.fixed)
     Pi, corner = _coarse_space(data, free)
     # the mass and springs: scalar matrices on the free nodes, projected
@@ -221,15 +226,7 @@ def coarse_system_matrix(data: RestData, dt: float, rayleigh_mass: float, raylei
             keep = (index[r] >= 0) & (index[c] >= 0)
             scalar = scalar + sp.csr_matrix((b[keep, 0, 0], (index[r[keep]], index[c[keep]])), shape=scalar.shape)
             continue
-        _, _, tets, poses, stiffness = part
-        dN = p2.shape_gradients(p2.GAUSS_POINTS)  # (4, 10, 3) in xi
-        for s in range(0, len(tets), 2048):
-            cells, chunk = tets[s:s + 2048], slice(s, s + 2048)
-            grads = np.einsum("gaj,mgji->mgai", dN, poses[chunk]) * ~data.fixed[cells][:, None, :, None]
-            projected = np.einsum("mgai,ac->mgci", grads, p2.NODE_POINTS)  # node a's value of corner c's function
-            m = len(cells)
-            r, c, b = _stiffness_blocks(np.repeat(cells[:, :4], 4, axis=0), projected.reshape(m * 4, 4, 3),
-                                        stiffness[chunk].reshape(m * 4, 2))
+        for r, c, b in _element_blocks(part, fixed=data.fixed):
             keep = (corner[r] >= 0) & (corner[c] >= 0)
             rows.append(corner[r[keep]]), cols.append(corner[c[keep]])
             blocks.append((dt * dt + dt * rayleigh_stiffness) * b[keep])
