@@ -351,9 +351,9 @@ class Cutter:
         return max(IN_PLANE, self.hold_distance)
 
     def _candidates(self, surface: CutSurface, bounds) -> np.ndarray:
-        """Live elements with a vertex near the surface (within the longest edge of a plane,
-        or inside its box grown by the longest edge): every element the surface
-        crosses: one vectorised pass over the vertices, then their elements by adjacency."""
+        """Live elements with a vertex near the surface (within :attr:`_margin` of a plane, or
+        inside its box grown by it): every element the surface crosses: one vectorised pass
+        over the vertices, then their elements by adjacency."""
         topo = self.topology
         x = self.coordinates()
         if isinstance(surface, Plane) and bounds is None:  # the mesh's own points: no validation pass
