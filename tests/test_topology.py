@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from wcut.errors import WcutError
-from wcut.mesh import TetMesh, beam
+from wcut.mesh import TET_FACES, TetMesh, beam
 from wcut.topology import (TetTopology, TopologyError, bisect_edge, check_topology, connected_components,
                            duplicate_vertex, face_key, flip23, move_vertex, remove_edge, sew_unopened, split_face,
                            split_tet, tet_qualities, tet_quality, unsew_face, vertex_fans)
@@ -916,6 +916,44 @@ def test_rest_points_keeps_barycentric_coordinates_under_a_nonlinear_deformation
     np.testing.assert_allclose(topo.rest_points(current), expected, rtol=0, atol=1e-12)
     # and not the exact inverse of the bending: the elements are linear
     assert np.abs(expected - current).max() > 0.05
+
+
+@pytest.mark.parametrize("name", BEAMS)
+def test_rest_points_carries_an_outside_point_from_its_nearest_boundary_point(name):
+    """Under a bending, a point outside the mesh is carried from the nearest point q of the whole
+    boundary (found here by measuring every boundary face): rest(q) + F^-1 (p - q), F the map of
+    q's element. The points lie on lines through the mesh that stick out by up to twice its
+    size, as a blade does: the nearest boundary point of a far end may lie beside the line."""
+    from wcut.topology.mesh import _closest_on_triangles
+
+    mesh = MESHES[name]()
+    topo = TetTopology(mesh, positions=_bend(mesh.vertices))
+    x, rest, live = topo.positions, topo.rest_positions, topo.live_tets()
+    tris = topo.tets[live][:, TET_FACES].reshape(-1, 3)
+    _, inverse, counts = np.unique(np.sort(tris, axis=1), axis=0, return_inverse=True, return_counts=True)
+    alone = counts[inverse.ravel()] == 1
+    faces, owners = tris[alone], np.repeat(live, 4)[alone]
+    corners = x[topo.tets[live]]
+    to_local = np.linalg.inv(np.transpose(corners[:, 1:] - corners[:, :1], (0, 2, 1)))
+    rng = np.random.default_rng(4)
+    checked = 0
+    for _ in range(20):
+        centre, direction = x[rng.integers(len(x))], rng.normal(size=3)
+        points = centre + np.linspace(-1.0, 1.0, 13)[:, None] * rng.uniform(1.0, 3.0) * direction \
+            / np.linalg.norm(direction)
+        for p, mapped in zip(points, topo.rest_points(points)):
+            local = np.einsum("mij,mj->mi", to_local, p - corners[:, 0])
+            if np.minimum(1.0 - local.sum(axis=1), local.min(axis=1)).max() >= -1e-9:
+                continue  # inside an element
+            bary, gap = _closest_on_triangles(np.broadcast_to(p, (len(faces), 3)),
+                                              *(x[faces[:, k]] for k in range(3)))
+            f = int(gap.argmin())
+            tet = topo.tets[owners[f]]
+            inverse_map = (rest[tet[1:]] - rest[tet[0]]).T @ np.linalg.inv((x[tet[1:]] - x[tet[0]]).T)
+            expected = bary[f] @ rest[faces[f]] + inverse_map @ (p - bary[f] @ x[faces[f]])
+            np.testing.assert_allclose(mapped, expected, rtol=0, atol=1e-9)
+            checked += 1
+    assert checked > 100
 
 
 # ---------------------------------------------------------------------------------------------

@@ -33,10 +33,12 @@ index is stable while it lives and the cost of a change follows the elements it 
 
 from __future__ import annotations
 
+import itertools
 import math
 import struct
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..errors import WcutError
 from ..mesh import TET_FACES, TetMesh, unique_rows
@@ -386,47 +388,63 @@ class TetTopology:
         blade's ends stick out of the body) is carried from the nearest boundary point q by
         the affine map of q's element: rest(q) + F^-1 (p - q). Extrapolating from q rather than
         from a nearby element's centre keeps an outside point outside under bending (the
-        error grows with the distance from q, not from the element). Only elements near the
-        points' bounding box are searched, so the cost follows the points, not the mesh.
+        error grows with the distance from q, not from the element). q is the nearest point of
+        the whole boundary, however far the point lies. A k-d tree of the element centres
+        finds the elements each point may lie in, and the boundary faces that may hold q.
         """
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         slots = self.live_tets()
         x, rest = self.positions, self.rest_positions
         corners = x[self.tets[slots]]  # (M, 4, 3)
-        lower, upper = corners.min(axis=1), corners.max(axis=1)
-        reach = float(np.max(upper - lower))
-        near = np.all((upper >= p.min(axis=0) - reach) & (lower <= p.max(axis=0) + reach), axis=1)
-        if not near.any():  # every point far outside: search everything
-            near[:] = True
-        slots, corners = slots[near], corners[near]
+        centre = 0.25 * (corners[:, 0] + corners[:, 1] + corners[:, 2] + corners[:, 3])
+        spoke = corners - centre[:, None]
+        radius_sq = np.einsum("mkj,mkj->mk", spoke, spoke).max(axis=1) * (1.0 + 1e-9)
+        # every point of an element lies within its radius of its centre: the elements that may
+        # hold a point are found by a k-d tree of the centres (a blade's 20 points among the
+        # organ's 5000 elements: 5 ms against 13 for every element near the blade's box)
+        reach = float(np.sqrt(radius_sq.max()))
+        tree = cKDTree(centre, balanced_tree=False)
+        pair_points, pair_slots = _pairs(tree.query_ball_point(p, reach))
+        gap = p[pair_points] - centre[pair_slots]
+        within = np.einsum("kj,kj->k", gap, gap) <= radius_sq[pair_slots]
+        pair_points, pair_slots = pair_points[within], pair_slots[within]
         edges = np.transpose(corners[:, 1:] - corners[:, :1], (0, 2, 1))  # columns x1-x0, x2-x0, x3-x0
-        local = np.einsum("mij,pmj->pmi", np.linalg.inv(edges), p[:, None, :] - corners[None, :, 0])  # (P, M, 3)
-        bary = np.concatenate([1.0 - local.sum(axis=2, keepdims=True), local], axis=2)
-        best = bary.min(axis=2).argmax(axis=1)
-        inside = bary.min(axis=2).max(axis=1) >= -1e-9
-        weights = bary[np.arange(len(p)), best]  # (P, 4)
-        out = np.einsum("pk,pkj->pj", weights, rest[self.tets[slots[best]]])
+        used, at = np.unique(pair_slots, return_inverse=True)
+        local = np.einsum("kij,kj->ki", np.linalg.inv(edges[used])[at], p[pair_points] - corners[pair_slots, 0])
+        bary = np.concatenate([1.0 - local.sum(axis=1, keepdims=True), local], axis=1)
+        depth = bary.min(axis=1)  # how far inside (a negative barycentric: outside)
+        first = _least_per_point(pair_points, -depth, pair_slots)  # the element holding it most deeply
+        best = np.full(len(p), -1, dtype=np.int64)
+        best[pair_points[first]] = first
+        inside = best >= 0
+        inside[inside] = depth[best[inside]] >= -1e-9
+        out = np.empty_like(p)
+        rows = best[inside]
+        out[inside] = np.einsum("pk,pkj->pj", bary[rows], rest[self.tets[slots[pair_slots[rows]]]])
         if not inside.all():
-            # the nearest boundary point of an outside point is no farther than any element's
-            # nearest point: elements whose box lies farther than the nearest box plus the
-            # longest box diagonal have no face that could be nearer
+            # the nearest boundary point q of an outside point is no farther than the nearest
+            # centre (a point of the mesh), and q's element has its centre within `reach` of q
             outside = p[~inside]
-            gap = np.linalg.norm(np.maximum(0.0, np.maximum(lower[near][None] - outside[:, None],
-                                                            outside[:, None] - upper[near][None])), axis=2)
-            diagonal = float(np.linalg.norm(upper[near] - lower[near], axis=1).max())
-            keep = (gap <= gap.min(axis=1, keepdims=True) + diagonal).any(axis=0)
-            out[~inside] = self._rest_points_outside(outside, slots[keep])
+            nearest, _ = tree.query(outside)
+            _, near = _pairs(tree.query_ball_point(outside, nearest + reach))
+            out[~inside] = self._rest_points_outside(outside, slots[np.unique(near)])
         return out
 
     def _rest_points_outside(self, p: np.ndarray, slots: np.ndarray) -> np.ndarray:
         """:meth:`rest_points` of points outside the mesh, by the boundary faces of ``slots``."""
         faces, owners = self._boundary_faces_of(slots)
         x, rest = self.positions, self.rest_positions
-        a, b, c = (np.broadcast_to(x[faces[:, k]], (len(p), len(faces), 3)) for k in range(3))
-        bary, gap = _closest_on_triangles(np.broadcast_to(p[:, None], a.shape), a, b, c)
-        nearest = gap.argmin(axis=1)
-        rows = np.arange(len(p))
-        weights, face = bary[rows, nearest], faces[nearest]
+        corners = x[faces]  # (F, 3, 3)
+        centre = corners.mean(axis=1)
+        radius = np.linalg.norm(corners - centre[:, None], axis=2).max(axis=1)
+        # a face's centre bounds the distance to the nearest face from above, its radius bounds
+        # the distance to each face from below: only the faces that may be nearest are measured
+        reach = np.linalg.norm(p[:, None] - centre[None], axis=2)  # (P, F)
+        points, candidates = np.nonzero(reach - radius[None] <= reach.min(axis=1, keepdims=True))
+        bary, gap = _closest_on_triangles(p[points], *(corners[candidates, k] for k in range(3)))
+        first = _least_per_point(points, gap, candidates)
+        weights, nearest = bary[first], candidates[first]
+        face = faces[nearest]
         tets = self.tets[np.asarray(owners)[nearest]]
         current = np.transpose(x[tets[:, 1:]] - x[tets[:, :1]], (0, 2, 1))
         initial = np.transpose(rest[tets[:, 1:]] - rest[tets[:, :1]], (0, 2, 1))
@@ -913,3 +931,19 @@ def _closest_on_triangles(p, a, b, c) -> tuple[np.ndarray, np.ndarray]:
         best_gap = np.where(better, gap, best_gap)
     bary = best
     return bary, np.linalg.norm(p - np.einsum("...k,k...j->...j", bary, corners), axis=-1)
+
+
+def _pairs(neighbours) -> tuple[np.ndarray, np.ndarray]:
+    """The (query, item) index pairs of a k-d tree's ``query_ball_point`` lists, flat."""
+    counts = np.fromiter(map(len, neighbours), np.int64, len(neighbours))
+    items = np.fromiter(itertools.chain.from_iterable(neighbours), np.int64, int(counts.sum()))
+    return np.repeat(np.arange(len(neighbours)), counts), items
+
+
+def _least_per_point(point_index: np.ndarray, cost: np.ndarray, tiebreak: np.ndarray) -> np.ndarray:
+    """Of pairs (``point_index[k]``, an item), per point the pair of least ``cost`` (of equal
+    costs, that of least ``tiebreak``), in ascending order of points."""
+    order = np.lexsort((tiebreak, cost, point_index))
+    if not len(order):
+        return order
+    return order[np.r_[True, point_index[order][1:] != point_index[order][:-1]]]
