@@ -197,6 +197,62 @@ def test_the_nodes_a_cut_touched_get_the_factor_of_their_own_rest_matrix(monkeyp
     assert np.abs(z[others]).max() == 0.0  # the patch's nodes give the factor of before nothing
 
 
+def _stars(cells: np.ndarray, rest: np.ndarray, count: int) -> list[set]:
+    """Per vertex, its elements as (sorted vertices, rounded rest corners): what its rows of the
+    rest matrix depend on."""
+    stars = [set() for _ in range(count)]
+    for tet in cells.tolist():
+        key = (tuple(sorted(tet)), tuple(map(tuple, rest[tet].round(12))))
+        for v in tet:
+            stars[v].add(key)
+    return stars
+
+
+@pytest.mark.parametrize("operation", ["flips", "deletion"])
+def test_the_factor_keeps_every_node_whose_elements_a_change_left_as_they_were(operation):
+    """Where a change frees slots (a 3-2 flip, a deletion), the elements after them are
+    renumbered, not changed: the factor of before keeps serving their nodes. It leaves out
+    every node whose elements (vertices, rest shape) differ from before, and keeps every other
+    one but those of the elements the change made."""
+    mesh = wcut.beam(6, 2, 2, size=(0.3, 0.05, 0.05))
+    topo = TetTopology(mesh)
+    before = _stars(mesh.tets, mesh.vertices, mesh.vertex_count)
+    topo.begin_change()
+    if operation == "flips":  # 2-3 then 3-2 flips inside: slots freed in the middle of the mesh
+        from wcut.topology import flip23, remove_edge
+
+        flipped = 0
+        for t in range(20, topo.tet_count, 17):
+            for k in range(4):
+                tet = topo.tet(t)
+                if not topo.alive[t]:
+                    break
+                face = tuple(sorted(tet[m] for m in range(4) if m != k))
+                if len(topo.face_tets.get(face, ())) == 2:
+                    try:
+                        made = flip23(topo, face)
+                    except wcut.WcutError:
+                        continue
+                    a, b = sorted(set(topo.tet(made[0])) & set(topo.tet(made[1])) & set(topo.tet(made[2])))
+                    remove_edge(topo, a, b)
+                    flipped += 1
+                    break
+        assert flipped >= 2
+    else:  # a corner element removed, no vertex left unused
+        topo.replace_tets([0], [])
+    change = topo.end_change()
+    after = topo.to_mesh()
+    assert change.element_count_after <= change.element_count_before and topo._free
+    model = Model(after)
+    kept = pc._untouched(change, model)
+    stars = _stars(after.tets, after.vertices, after.vertex_count)
+    same = np.array([stars[v] == before[v] for v in range(after.vertex_count)])
+    assert same[kept].all()  # never a node whose elements changed
+    made = np.zeros(after.vertex_count, dtype=bool)  # (a flip undone by a flip makes elements alike)
+    made[after.tets[change.added_elements].ravel()] = True
+    assert kept[same & ~made].all() and 0 < (~same).sum() < after.vertex_count // 2
+
+
 def test_the_patch_cuts_the_iterations_after_a_cut(monkeypatch):
     """The steps after a cut, before the refresh: with the patch, far fewer iterations than with
     Jacobi on the nodes the cut touched (the factor of before still joins their neighbours to

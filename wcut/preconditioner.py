@@ -522,16 +522,17 @@ class RotatedCholesky:
         out.node_rotation = wp.array(_carried_rotations(self.node_rotation.numpy(), change), dtype=wp.quat, device=d)
         out.owner = wp.array(_owners(model), dtype=wp.int32, device=d)
         out._factor, out._factored_for, out._arrays = self._factor, self._factored_for, self._arrays
-        rows = _carried_positions(self.factor_rows.numpy(), change, model)
+        keep = _untouched(change, model)
+        rows = _carried_positions(self.factor_rows.numpy(), keep)
         out.factor_rows = wp.array(rows, dtype=wp.int32, device=d)
-        out.factor_weights = wp.array(np.where(rows >= 0, _carried_positions(self.factor_weights.numpy(), change, model),
-                                               0.0), dtype=wp.float32, device=d)
+        out.factor_weights = wp.array(np.where(rows >= 0, _carried_positions(self.factor_weights.numpy(), keep), 0.0),
+                                      dtype=wp.float32, device=d)
         out.patch_position = wp.full(model.particle_count, -1, dtype=wp.int32, device=d)
         out._patch, out._patch_due = None, out._factor is not None
         out._generation, out._steps = self._generation + 1, self._steps
         out._outdated, out._pending = True, self._pending
         if out._pending is not None:  # its factor is of a model before this change: map it too
-            out._pending.positions = _carried_positions(out._pending.positions, change, model)
+            out._pending.positions = _carried_positions(out._pending.positions, keep)
             out._pending.stale = True
         elif out._factored_for is not None:
             out._start_refresh(out._factored_for)
@@ -653,29 +654,35 @@ def _with_neighbours(model, nodes: np.ndarray) -> np.ndarray:
 
 def _untouched(change, model) -> np.ndarray:
     """(N_after,) bool: vertices after ``change`` that are the vertex of the same index before and
-    belong to no element the change added, reshaped, renumbered or rewired."""
+    belong to no element the change added, reshaped or rewired, nor to one it removed (an
+    element only renumbered, as a freed slot shifts the elements after it, changes no vertex's
+    matrix). Where the change does not list its rewired elements and removed vertices, every
+    element renumbered counts as changed."""
     from .model import _reparented, _touched_vertices
 
     n = change.vertex_count_after
     keep = np.zeros(n, dtype=bool)
     keep[:min(n, change.vertex_count_before)] = True
     keep[_touched_vertices(change)] = False
-    elements = [change.rest_changed_elements(), _reparented(change)]
-    if change.rewired_elements is not None:
-        elements.append(change.rewired_elements)
-    else:  # unknown: every element whose vertices differ (compared row by row)
-        elements.append(np.flatnonzero(change.element_parent != np.arange(len(change.element_parent))))
+    if change.rewired_elements is not None and change.removed_vertices is not None:
+        elements = [change.rest_changed_elements(), change.added_elements, change.rewired_elements]
+        removed = change.removed_vertices
+        keep[removed[removed < n]] = False
+    else:
+        parent = change.element_parent
+        elements = [change.rest_changed_elements(), _reparented(change),
+                    np.flatnonzero(parent != np.arange(len(parent)))]
     cells = model.tet_indices.numpy()
     changed = np.unique(np.concatenate(elements)).astype(np.int64)
     keep[cells[changed[changed < len(cells)]].ravel()] = False
     return keep
 
 
-def _carried_positions(positions: np.ndarray, change, model) -> np.ndarray:
-    """Per-node factor rows (N, ...) (or free indices (N,)) after ``change``: kept for the
-    untouched vertices (:func:`_untouched`), -1 for the others."""
-    keep = _untouched(change, model).reshape((-1,) + (1,) * (positions.ndim - 1))
-    out = np.full((change.vertex_count_after,) + positions.shape[1:], -1, dtype=positions.dtype)
+def _carried_positions(positions: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Per-node factor rows (N, ...) (or free indices (N,)) after a change: kept for the
+    vertices it left untouched (``keep``, :func:`_untouched`), -1 for the others."""
+    keep = keep.reshape((-1,) + (1,) * (positions.ndim - 1))
+    out = np.full((len(keep),) + positions.shape[1:], -1, dtype=positions.dtype)
     k = min(len(positions), len(out))
     out[:k] = np.where(keep[:k], positions[:k], -1)
     return out

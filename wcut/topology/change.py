@@ -57,6 +57,10 @@ def _journal_vertices(journal) -> tuple[np.ndarray, np.ndarray, np.ndarray, int,
     return rows, sources, weights, width, created[expressed], created_in[expressed]
 
 
+def _removed_vertices(journal) -> np.ndarray:
+    return np.array(sorted(journal.removed_vertices), dtype=np.int64)
+
+
 def _slot_hints(journal, new_slots: np.ndarray, origins: np.ndarray, count_after: int) -> dict:
     """The reparented and rewired elements of a change whose slots are the elements' indices
     before and after (``new_slots`` and the base slots they lie in, ``origins``)."""
@@ -110,6 +114,8 @@ class TopologyChange:
     #: elements below both element counts whose vertices may differ from before although
     #: neither their parent nor their rest shape changed (a vertex swapped for its copy)
     rewired_elements: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: vertices (numbered before) of the elements removed, ascending
+    removed_vertices: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     # What Model.rebuild reads: a few rows each (the journal's record answers without laying
     # out the whole-mesh arrays).
@@ -181,6 +187,12 @@ class TopologyChange:
         moved = np.sort(rows[rows < v_a])
         if journal.vertex_renumber is None:
             hints["touched_vertices"] = np.concatenate([moved, np.arange(v_a, v_b, dtype=np.int64)])
+            hints["removed_vertices"] = _removed_vertices(journal)
+            if "rewired_elements" not in hints:  # the live slots rewired, at their indices after
+                rewired = np.zeros(topo.slot_count, dtype=bool)
+                rewired[list(journal.rewired)] = True
+                rewired = np.flatnonzero(rewired[slots])
+                hints["rewired_elements"] = rewired[rewired < min(len(base_slots), len(slots))]
         else:
             hints.pop("rewired_elements", None)  # every row may have new vertex numbers
         return cls(
@@ -240,6 +252,7 @@ class _JournalChange(TopologyChange):
                 moved_vertices=moved, removed_elements=np.array(sorted(journal.removed_base), dtype=np.int64),
                 added_elements=sparse.new_slots,
                 touched_vertices=np.concatenate([moved, np.arange(v_a, v_b, dtype=np.int64)]),
+                removed_vertices=_removed_vertices(journal),
                 **_slot_hints(journal, new_slots, origins, m_b)).items():
             object.__setattr__(change, name, value)
         return change

@@ -543,6 +543,7 @@ class TetTopology:
                     del origin[t]
                 else:
                     removed_base.add(t)
+                    journal.removed_vertices.update(tets[t].tolist())
         free = self._free
         free.extend(reversed(removed))
         if later:  # many elements (a write-back): their rows in one assignment
@@ -845,6 +846,7 @@ class _Journal:
         self.base_slots = topo.live_tets()
         self.base_vertex_count = topo.vertex_count
         self.removed_base: set[int] = set()  # base slots no longer in the mesh
+        self.removed_vertices: set[int] = set()  # the vertices of those, when removed
         self.origin: dict[int, int] = {}   # new slot -> base slot it lies in
         self.reshaped: set[int] = set()     # base slots whose rest shape may have changed
         self.rewired: set[int] = set()      # slots given another vertex in place (retarget)
@@ -861,6 +863,7 @@ class _Journal:
             del self.origin[t]
         else:
             self.removed_base.add(t)
+            self.removed_vertices.update(self.topo.tets[t].tolist())
 
     def added(self, t: int, origin: int) -> None:
         self.origin[t] = origin
