@@ -222,7 +222,10 @@ class _CornerCutter(Cutter):
     def __init__(self, owner: QuadraticCutter, **options):
         # the Python operators: the curved cutter is tested with their choice between equally
         # good triangulations of a general flip
-        super().__init__(owner.topology, curved_boundary=owner.curved_boundary, compiled=False, **options)
+        # no local improvement: moving a corner would have to keep the curved elements around
+        # it unfolded, which the improvement does not check
+        super().__init__(owner.topology, curved_boundary=owner.curved_boundary, compiled=False, improve=False,
+                         **options)
         self._owner = owner
 
     def _move_keeps_quality(self, v: int, other: int, s: float) -> bool:

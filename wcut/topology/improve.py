@@ -12,7 +12,16 @@ improves the elements a change made, and their neighbours, in the rest configura
   opposite face of its worst element, within its star (``move_vertex``, whose state is carried
   by interpolation in the change record). A boundary vertex moves only within a flat boundary
   (there the move keeps the boundary and the volume to rounding); *frozen* vertices (on the cut
-  surface, its lips) never move.
+  surface, its lips) never move alone;
+- *sliding on the cut*: a vertex inside the wound and its copy on the other lip (*twins*, at
+  the same rest position) move together towards the centroid of their neighbours on the lip,
+  within the plane of the lip's faces around them (both fans must be flat), so the lips still
+  meet, the wound's faces cover the same surface and each side keeps its volume. A cut leaves
+  its worst elements where the split point of an element lies a few hundredths of an edge from
+  the split point of one of its faces (a plane passing close to an edge); sliding moves them
+  apart: on ten random plane cuts of the organ, the worst dihedral angle rises from 1.5-4.0 to
+  4.3-5.2 degrees by sliding alone. Sliding comes first: flips and smoothing before it left
+  the worst at 3.1 degrees.
 
 The measure is the smallest sine of an element's six dihedral angles (:func:`min_sine`):
 small for slivers, needles and caps alike (a dihedral angle near 0 or near 180 degrees both
@@ -20,7 +29,9 @@ make the element stiff). Each move is made only if it raises the worst measure o
 elements it replaces or reshapes, so the worst element never gets worse; every move keeps
 the rest volume, the outer boundary and the cut surface: a flip of a boundary edge only where
 its boundary faces are coplanar, no flip removes an edge or a face whose vertices are all
-frozen.
+frozen. The caller keeps the sides of the cut apart: the cutter refuses a smoothing move that
+ends within the surface's tolerance or crosses it, and a flip that makes an element with an
+edge across it (without either, half of the organ's plane cuts at epsilon 0 were left joined).
 """
 
 from __future__ import annotations
@@ -29,16 +40,20 @@ import math
 from dataclasses import dataclass
 
 from .mesh import TetTopology, TopologyError, face_key
-from .operators import flip23, move_vertex, remove_edge
+from .operators import check_vertex_move, flip23, move_vertex, remove_edge
 
 #: Elements whose smallest dihedral angle is below this (degrees) are improved.
-TARGET_ANGLE = 5.0
+TARGET_ANGLE = 6.0
 
 #: Passes over the elements still below the target (each pass may create new poor neighbours).
 PASSES = 3
 
 #: Smoothing tries these fractions of the step towards each candidate position.
 STEPS = (1.0, 0.5, 0.25)
+
+#: Sliding also tries moving a vertex away from its nearest neighbour on the lip by these
+#: multiples of their distance.
+AWAY = (1.0, 0.5)
 
 #: The six edges of a tetrahedron, as local vertex pairs.
 _EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
@@ -52,6 +67,7 @@ class ImproveStats:
     edge_flips: int = 0
     face_flips: int = 0
     smoothed: int = 0
+    slid: int = 0
     worst_before: float = math.nan
     worst_after: float = math.nan
 
@@ -73,11 +89,22 @@ def min_sine(p0, p1, p2, p3) -> float:
     return min(six_v * _norm(e) / (fa * fb) for e, fa, fb in pairs)
 
 
-def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TARGET_ANGLE) -> ImproveStats:
+def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TARGET_ANGLE,
+            twins: dict[int, int] | None = None, pinned=frozenset(), reshape: bool = True, may_move=None,
+            may_make=None) -> ImproveStats:
     """Improve live elements ``elements`` (slots) whose smallest dihedral angle is below
     ``target`` (degrees), and what the moves make. ``frozen``: vertices that must not move
-    (the cut surface)."""
+    alone (the cut surface). ``twins``: the copy on the other lip of each vertex inside the
+    wound (both ways; a vertex the cut did not duplicate, at the wound's front, maps to
+    itself), for sliding. ``pinned``: vertices that never move, not even sliding, and whose
+    elements no flip removes (a progressive cut's elements still under the blade). ``reshape``:
+    flips and smoothing too; False slides only.
+    ``may_move(v, parents, weights)``: whether smoothing may move vertex v to that combination
+    (the cutter refuses a move onto or across the cut surface, which would join the sides);
+    ``may_make(tets)``: whether a flip may make these elements (vertex lists; the cutter
+    refuses one with an edge across the cut surface)."""
     stats = ImproveStats()
+    fixed = frozen | set(pinned) if pinned else frozen
     goal = math.sin(math.radians(target))
     sine = _Sines(topo)
     work = {t for t in elements if topo.alive[t]}
@@ -92,8 +119,10 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
         for _, t in poor:
             if not topo.alive[t] or sine(t) >= goal:
                 continue
-            made = _flip_edges(topo, t, frozen, sine, stats) or _flip_faces(topo, t, frozen, sine, stats) \
-                or _smooth(topo, t, frozen, sine, stats)
+            accept = _better(sine, may_make)
+            made = (twins and _slide(topo, t, twins, pinned, sine, stats)) or \
+                (reshape and (_flip_edges(topo, t, fixed, accept, stats) or _flip_faces(topo, t, fixed, accept, stats)
+                              or _smooth(topo, t, fixed, sine, stats, may_move)))
             if made:
                 work.update(made)
                 changed = True
@@ -127,12 +156,14 @@ class _Sines:
         return min(min_sine(*[rest[v] for v in tet]) for tet in tets)
 
 
-def _better(sine: _Sines):
-    """An ``accept`` for the flips: the new elements' worst sine exceeds the removed ones'."""
-    return lambda removed, added: sine.of(added) > min(sine(t) for t in removed)
+def _better(sine: _Sines, may_make=None):
+    """An ``accept`` for the flips: the new elements' worst sine exceeds the removed ones', and
+    ``may_make`` (if given) allows them."""
+    return lambda removed, added: sine.of(added) > min(sine(t) for t in removed) and \
+        (may_make is None or may_make(added))
 
 
-def _flip_edges(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats) -> list[int]:
+def _flip_edges(topo: TetTopology, t: int, frozen: set[int], accept, stats: ImproveStats) -> list[int]:
     """A general flip of one of element t's edges that raises the worst sine of its ring."""
     tet = topo.tet(t)
     for i, j in _EDGES:
@@ -140,7 +171,7 @@ def _flip_edges(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats
         if a in frozen and b in frozen:
             continue  # an edge on the cut surface stays
         try:
-            made = remove_edge(topo, a, b, accept=_better(sine))
+            made = remove_edge(topo, a, b, accept=accept)
         except TopologyError:
             continue
         stats.edge_flips += 1
@@ -148,7 +179,7 @@ def _flip_edges(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats
     return []
 
 
-def _flip_faces(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats) -> list[int]:
+def _flip_faces(topo: TetTopology, t: int, frozen: set[int], accept, stats: ImproveStats) -> list[int]:
     """A 2-3 flip of one of element t's faces that raises the worst sine of the pair."""
     tet = topo.tet(t)
     for k in range(4):
@@ -159,7 +190,7 @@ def _flip_faces(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats
         if len(owners) != 2 or key in topo.unsewn:
             continue
         try:
-            made = flip23(topo, key, accept=_better(sine))
+            made = flip23(topo, key, accept=accept)
         except TopologyError:
             continue
         stats.face_flips += 1
@@ -167,7 +198,7 @@ def _flip_faces(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats
     return []
 
 
-def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats) -> list[int]:
+def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats, may_move=None) -> list[int]:
     """Move one vertex of element t to where the worst sine of its star rises most (the best
     move that ``move_vertex`` accepts)."""
     rest = topo.rest_tuples
@@ -185,12 +216,56 @@ def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: Im
                 if q > now:
                     moves.append((q - now, v, full, w))
     for _, v, parents, weights in sorted(moves, key=lambda m: -m[0]):
+        if may_move is not None and not may_move(v, parents, weights):
+            continue
         try:
             move_vertex(topo, v, parents, weights)
         except TopologyError:
             continue
         stats.smoothed += 1
         return sorted(topo.vertex_tets[v])
+    return []
+
+
+def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sines, stats: ImproveStats) -> list[int]:
+    """Move a vertex of element t inside the wound and its twin on the other lip together,
+    towards the centroid of its neighbours on its lip (the twins of those on the other), to
+    where the worst sine of both stars rises most; both moves must be ones ``move_vertex``
+    accepts (within the flat fans of the lips)."""
+    rest = topo.rest_tuples
+    moves = []
+    for v in topo.tet(t):
+        w = twins.get(v, v)
+        if w == v or v in pinned or w in pinned:
+            continue
+        star = sorted(topo.vertex_tets[v] | topo.vertex_tets[w])
+        now = min(sine(s) for s in star)
+        lip = [u for u in {u for s in topo.vertex_tets[v] for u in topo.tets[s].tolist()} - {v}
+               if topo.is_boundary_edge(v, u)]
+        mirrored = [twins.get(u, u) for u in lip]
+        if not lip or any(not topo.is_boundary_edge(w, u) for u in mirrored):
+            continue  # the lips' fans around v and w do not match
+        nearest = min(range(len(lip)), key=lambda i: _norm(_sub(rest[lip[i]], rest[v])))
+        targets = [[1.0 - step] + [step / len(lip)] * len(lip) for step in STEPS]
+        for a in AWAY:  # from the nearest neighbour on the lip, along their edge
+            weights = [1.0 + a] + [0.0] * len(lip)
+            weights[1 + nearest] = -a
+            targets.append(weights)
+        for weights in targets:
+            p = _combine([rest[v]] + [rest[u] for u in lip], weights)
+            q = min(min_sine(*[p if u == v or u == w else rest[u] for u in topo.tets[s].tolist()]) for s in star)
+            if q > now:
+                moves.append((q - now, v, w, lip, mirrored, weights))
+    for _, v, w, lip, mirrored, weights in sorted(moves, key=lambda m: -m[0]):
+        try:
+            check_vertex_move(topo, v, [v] + lip, weights)
+            check_vertex_move(topo, w, [w] + mirrored, weights)
+        except TopologyError:
+            continue
+        move_vertex(topo, v, [v] + lip, weights)
+        move_vertex(topo, w, [w] + mirrored, weights)
+        stats.slid += 1
+        return sorted(topo.vertex_tets[v] | topo.vertex_tets[w])
     return []
 
 

@@ -469,6 +469,14 @@ def move_vertex(topo: TetTopology, v: int, parents, weights, *, feature_angle: f
     normals differ by ``feature_angle`` or more. That slide changes the volume slightly (as
     the thesis's boundary flips do, 5.1.2): in proportion to the step and to the boundary's
     curvature, about 1e-3 of the volume of the elements around v in the tests."""
+    weights = check_vertex_move(topo, v, parents, weights, feature_angle=feature_angle)
+    topo.set_vertex(v, list(parents), weights)
+
+
+def check_vertex_move(topo: TetTopology, v: int, parents, weights, *, feature_angle: float = 0.0) -> np.ndarray:
+    """Raise :class:`TopologyError` where :func:`move_vertex` would refuse the move; return the
+    weights as it takes them. Changes nothing (a caller moving two vertices together checks
+    both first)."""
     weights = _weights(weights, len(parents), f"moving vertex {v}")
     target = _point(topo, parents, weights)
     around = sorted(topo.vertex_tets[v])
@@ -481,7 +489,7 @@ def move_vertex(topo: TetTopology, v: int, parents, weights, *, feature_angle: f
             smooth = (normals @ normals.T).min() > np.cos(np.radians(feature_angle))
             if not (along and smooth and feature_angle > 0.0):
                 raise TopologyError(f"moving boundary vertex {v} would take it off its boundary")
-    topo.set_vertex(v, list(parents), weights)
+    return weights
 
 
 def _boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
