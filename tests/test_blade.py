@@ -118,6 +118,10 @@ def test_the_blade_refuses_bad_positions_and_stale_states():
         blade.cut(small.state(), [0.04, -0.01, 0.05], [0.04, 0.05, 0.05])
     with pytest.raises(CutError, match="samples"):
         wcut.Blade(mesh, samples=1)
+    from wcut.quadratic import to_quadratic
+
+    with pytest.raises(CutError, match="improve is for linear elements"):
+        wcut.Blade(to_quadratic(mesh), improve=True)
     state = model.state()
     assert blade.cut(state, [0.041, -0.01, 0.05], [0.041, 0.05, 0.05]) is None  # placed
     blade.lift()

@@ -51,7 +51,9 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
                     4**subdivision flat triangles, 0..5, default 2)
     [cut]           a blade that cuts the object progressively (thesis chapter 5):
                     method ("paulus", "bielser", "snap", "delete"), epsilon (snapping threshold,
-                    fraction of the mean edge length), frames = [f0, f1, ...] (key frames),
+                    fraction of the mean edge length), improve (local mesh improvement after
+                    each frame's cut, linear elements only; default false: it runs in Python,
+                    some 16 ms per frame on organ_cut), frames = [f0, f1, ...] (key frames),
                     blade = [[[x,y,z],[x,y,z]], ...] (its two endpoints at each key frame, m;
                     linear in between). From f0 on, each frame cuts along the surface the
                     blade swept since the previous frame, in the current configuration.
@@ -180,8 +182,8 @@ DEFAULT_THICKNESS = 1.0e-3
 _SHEET_CELLS = [8, 8]
 _SHEET_SIZE = [0.2, 0.2]
 
-_CUT_SCHEMA = {"method": (_string, "paulus"), "epsilon": (_number, 0.1), "frames": (_list_of(_integer), None),
-               "blade": (None, None)}
+_CUT_SCHEMA = {"method": (_string, "paulus"), "epsilon": (_number, 0.1), "improve": (_boolean, False),
+               "frames": (_list_of(_integer), None), "blade": (None, None)}
 _FORCE_SCHEMA = {"box": (_box, None), "total": (_vec3, None)}
 _ATTACHMENT_SCHEMA = {"point": (_vec3, None), "vertex": (_integer, None), "box": (_box, None),
                       "target": (_vec3, None), "stiffness": (_number, None), "velocity": (_vec3, [0.0, 0.0, 0.0]),
@@ -801,7 +803,7 @@ class _Blade(Blade):
     def __init__(self, cut: dict, mesh):
         from .cut import SweptBlade
 
-        super().__init__(mesh, method=cut["method"], epsilon=cut["epsilon"])
+        super().__init__(mesh, method=cut["method"], epsilon=cut["epsilon"], improve=cut["improve"])
         self.first = cut["frames"][0]
         self.sweep = SweptBlade(blade_path(cut))
         length = float(np.linalg.norm(self.sweep.blade[:, 1] - self.sweep.blade[:, 0], axis=1).max())

@@ -90,15 +90,13 @@ def min_sine(p0, p1, p2, p3) -> float:
 
 
 def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TARGET_ANGLE,
-            twins: dict[int, int] | None = None, pinned=frozenset(), reshape: bool = True, may_move=None,
-            may_make=None) -> ImproveStats:
+            twins: dict[int, int] | None = None, pinned=frozenset(), may_move=None, may_make=None) -> ImproveStats:
     """Improve live elements ``elements`` (slots) whose smallest dihedral angle is below
     ``target`` (degrees), and what the moves make. ``frozen``: vertices that must not move
     alone (the cut surface). ``twins``: the copy on the other lip of each vertex inside the
     wound (both ways; a vertex the cut did not duplicate, at the wound's front, maps to
     itself), for sliding. ``pinned``: vertices that never move, not even sliding, and whose
-    elements no flip removes (a progressive cut's elements still under the blade). ``reshape``:
-    flips and smoothing too; False slides only.
+    elements no flip removes (a progressive cut's elements still under the blade).
     ``may_move(v, parents, weights)``: whether smoothing may move vertex v to that combination
     (the cutter refuses a move onto or across the cut surface, which would join the sides);
     ``may_make(tets)``: whether a flip may make these elements (vertex lists; the cutter
@@ -107,6 +105,7 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     fixed = frozen | set(pinned) if pinned else frozen
     goal = math.sin(math.radians(target))
     sine = _Sines(topo)
+    accept = _better(sine, may_make)
     work = {t for t in elements if topo.alive[t]}
     if not work:
         return stats
@@ -119,10 +118,8 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
         for _, t in poor:
             if not topo.alive[t] or sine(t) >= goal:
                 continue
-            accept = _better(sine, may_make)
-            made = (twins and _slide(topo, t, twins, pinned, sine, stats)) or \
-                (reshape and (_flip_edges(topo, t, fixed, accept, stats) or _flip_faces(topo, t, fixed, accept, stats)
-                              or _smooth(topo, t, fixed, sine, stats, may_move)))
+            made = (twins and _slide(topo, t, twins, pinned, sine, stats)) or _flip_edges(topo, t, fixed, accept, stats) \
+                or _flip_faces(topo, t, fixed, accept, stats) or _smooth(topo, t, fixed, sine, stats, may_move)
             if made:
                 work.update(made)
                 changed = True
