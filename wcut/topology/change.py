@@ -58,6 +58,7 @@ def _journal_vertices(journal) -> tuple[np.ndarray, np.ndarray, np.ndarray, int,
 
 
 def _removed_vertices(journal) -> np.ndarray:
+    """The vertices (numbered before) of the base elements the journal's change removed."""
     return np.array(sorted(journal.removed_vertices), dtype=np.int64)
 
 

@@ -401,7 +401,7 @@ class TetTopology:
         radius_sq = np.einsum("mkj,mkj->mk", spoke, spoke).max(axis=1) * (1.0 + 1e-9)
         # every point of an element lies within its radius of its centre: the elements that may
         # hold a point are found by a k-d tree of the centres (a blade's 20 points among the
-        # organ's 5000 elements: 5 ms against 13 for every element near the blade's box)
+        # organ's 5000 elements: 7.5 ms against 12.8 for every element near the blade's box)
         reach = float(np.sqrt(radius_sq.max()))
         tree = cKDTree(centre, balanced_tree=False)
         pair_points, pair_slots = _pairs(tree.query_ball_point(p, reach))
