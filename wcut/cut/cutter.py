@@ -34,7 +34,6 @@ surface, then disconnects; ``delete`` removes every crossed element; ``bielser``
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -48,6 +47,7 @@ from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge,
                         unsew_face)
 from ..topology.improve import TARGET_ANGLE as IMPROVE_TARGET
 from ..topology.improve import improve as improve_mesh
+from ..topology.mesh import ball_pairs
 from ..topology.region import OUTSIDE, TetRegion
 from .separation import IN_PLANE, element_sides
 from .surface import CutSurface, Plane, TriangleSurface
@@ -427,9 +427,7 @@ class Cutter:
         centre, half = 0.5 * (upper + lower), 0.5 * np.linalg.norm(upper - lower, axis=1)
         seg_centre, seg_half = 0.5 * (seg_hi + seg_lo), 0.5 * np.linalg.norm(seg_hi - seg_lo, axis=1)
         near = cKDTree(centre).query_ball_point(seg_centre, seg_half + half.max() + 2.0 * self.tolerance)
-        counts = np.fromiter(map(len, near), np.int64, len(near))
-        b = np.repeat(np.arange(len(segments)), counts)
-        m = np.fromiter(itertools.chain.from_iterable(near), np.int64, counts.sum())
+        b, m = ball_pairs(near)
         meets = np.all((seg_lo[b] <= upper[m] + self.tolerance) & (seg_hi[b] >= lower[m] - self.tolerance), axis=1)
         m, b = m[meets], b[meets]
         if not len(m):

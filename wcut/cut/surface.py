@@ -26,7 +26,6 @@ surface, open or closed; Wavefront .obj I/O), :class:`Polygon` (bounded planar p
 
 from __future__ import annotations
 
-import itertools
 import os
 from abc import ABC, abstractmethod
 
@@ -35,6 +34,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import WcutError
 from ..io import atomic_path
+from ..topology.mesh import ball_pairs
 
 #: Barycentric tolerance of the segment/triangle test: a crossing point up to this fraction of
 #: the triangle's height outside an edge still counts, so a segment through a shared edge or
@@ -325,10 +325,10 @@ class TriangleSurface(CutSurface):
         """Unique (point row, triangle) pairs with the triangle possibly within ``radius`` (M,) m."""
         tree, rows, tris = self._pieces(), [], []
         for start in range(0, len(points), _BLOCK):
-            lists = tree.query_ball_point(points[start:start + _BLOCK], radius[start:start + _BLOCK] + self._reach)
-            counts = np.fromiter(map(len, lists), np.int64, len(lists))
-            rows.append(np.repeat(np.arange(start, start + len(lists)), counts))
-            tris.append(self._piece_tri[np.fromiter(itertools.chain.from_iterable(lists), np.int64, counts.sum())])
+            row, piece = ball_pairs(tree.query_ball_point(points[start:start + _BLOCK],
+                                                          radius[start:start + _BLOCK] + self._reach))
+            rows.append(start + row)
+            tris.append(self._piece_tri[piece])
         key = np.sort(np.concatenate(rows) * len(self) + np.concatenate(tris))
         key = key[np.r_[True, key[1:] != key[:-1]]] if key.size else key  # unique, sorted
         return key // len(self), key % len(self)
