@@ -88,6 +88,38 @@ def rotate_into_factor(
                     wp.atomic_add(t, row, factor_weights[i, k] * u)
 
 
+@wp.func
+def less_block_products(
+    acc: wp.vec3,
+    block_column: wp.array(dtype=wp.int32),
+    blocks: wp.array(dtype=wp.mat33),
+    first: int,
+    last: int,
+    t: wp.array(dtype=wp.vec3),
+):
+    """``acc - sum L_b t[column b]`` over the blocks ``first..last-1``, subtracted in order."""
+    out = acc
+    for b in range(first, last):
+        out = out - blocks[b] * t[block_column[b]]
+    return out
+
+
+@wp.func
+def scatter_block_products(
+    block_column: wp.array(dtype=wp.int32),
+    blocks: wp.array(dtype=wp.mat33),
+    first: int,
+    last: int,
+    x: wp.vec3,
+    t: wp.array(dtype=wp.vec3),
+):
+    """``t[column b] -= L_b^T x`` over the blocks ``first..last-1`` (a solved row's share of a
+    backward substitution)."""
+    for b in range(first, last):
+        c = block_column[b]
+        t[c] = t[c] - wp.transpose(blocks[b]) * x
+
+
 @wp.kernel
 def block_forward(
     row_start: wp.array(dtype=wp.int32),
@@ -101,9 +133,7 @@ def block_forward(
     """One thread: forward substitution ``L y = t`` in place over the block rows ``lo..hi-1``
     (the rows they use before ``lo`` already solved)."""
     for row in range(lo, hi):
-        acc = t[row]
-        for b in range(row_start[row], row_start[row + 1]):
-            acc = acc - blocks[b] * t[block_column[b]]
+        acc = less_block_products(t[row], block_column, blocks, row_start[row], row_start[row + 1], t)
         t[row] = diagonal_inverse[row] * acc
 
 
@@ -127,9 +157,7 @@ def block_backward(
         row = lo + k
         x = wp.transpose(diagonal_inverse[row]) * t[row]
         t[row] = x
-        for b in range(first_block[k], row_start[row + 1]):
-            c = block_column[b]
-            t[c] = t[c] - wp.transpose(blocks[b]) * x
+        scatter_block_products(block_column, blocks, first_block[k], row_start[row + 1], x, t)
 
 
 @wp.kernel
@@ -143,11 +171,8 @@ def block_forward_gather(
 ):
     """One thread: ``acc[k] = sum L_b t[column b]`` over the blocks ``segment_start[k] ..
     segment_end[k] - 1`` of top row k (blocks in one subtree's columns, already solved)."""
-    for k in range(acc.shape[0]):
-        sum = wp.vec3(0.0)
-        for b in range(segment_start[k], segment_end[k]):
-            sum = sum + blocks[b] * t[block_column[b]]
-        acc[k] = sum
+    for k in range(acc.shape[0]):  # (-(0 - a - b) is a + b to the bit: rounding is symmetric)
+        acc[k] = -less_block_products(wp.vec3(0.0), block_column, blocks, segment_start[k], segment_end[k], t)
 
 
 @wp.kernel
@@ -167,9 +192,8 @@ def block_forward_top(
     ``top_start[k]`` is the first block of row ``lo + k`` in a top column."""
     for k in range(acc_a.shape[0]):
         row = lo + k
-        acc = t[row] - acc_a[k] - acc_b[k]
-        for b in range(top_start[k], row_start[row + 1]):
-            acc = acc - blocks[b] * t[block_column[b]]
+        acc = less_block_products(t[row] - acc_a[k] - acc_b[k], block_column, blocks, top_start[k],
+                                  row_start[row + 1], t)
         t[row] = diagonal_inverse[row] * acc
 
 
@@ -186,10 +210,7 @@ def block_backward_scatter(
     segment_end[k] - 1`` of each top row k (solved): the top rows' share of one subtree's
     backward substitution."""
     for k in range(segment_start.shape[0]):
-        x = t[lo + k]
-        for b in range(segment_start[k], segment_end[k]):
-            c = block_column[b]
-            t[c] = t[c] - wp.transpose(blocks[b]) * x
+        scatter_block_products(block_column, blocks, segment_start[k], segment_end[k], t[lo + k], t)
 
 
 @wp.kernel
