@@ -1121,11 +1121,12 @@ class Cutter:
             twins = {v: w for pair in copies.values() if len(pair) == 2 for v, w in (pair, pair[::-1])}
         coordinates, tolerance = self.coordinates(), self.tolerance
 
-        def off_the_cut(v: int, parents: list[int], weights: list[float]) -> bool:
-            """A move of v that neither crosses the surface nor ends within its tolerance."""
-            p = (np.asarray(weights) @ coordinates[parents])[None]
-            t, _ = surface.crossings(coordinates[v][None], p, tolerance)
-            return bool(np.isnan(t[0]) and surface.distance(p, tolerance)[0] > tolerance)
+        def off_the_cut(vertices: list[int], parents: list[list[int]], weights: list[list[float]]) -> np.ndarray:
+            """Per move of ``vertices[i]``: it neither crosses the surface nor ends within its
+            tolerance."""
+            p = np.array([np.asarray(w) @ coordinates[u] for u, w in zip(parents, weights)])
+            t, _ = surface.crossings(coordinates[list(vertices)], p, tolerance)
+            return np.isnan(t) & (surface.distance(p, tolerance) > tolerance)
 
         def apart(tets: list[list[int]]) -> bool:
             """No edge of ``tets`` crosses the surface (an element across the cut joins its sides)."""

@@ -39,6 +39,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from .mesh import TetTopology, TopologyError, face_key
 from .operators import check_vertex_move, flip23, move_vertex, remove_edge
 
@@ -89,6 +91,21 @@ def min_sine(p0, p1, p2, p3) -> float:
     return min(six_v * _norm(e) / (fa * fb) for e, fa, fb in pairs)
 
 
+def min_sines(corners: np.ndarray) -> np.ndarray:
+    """:func:`min_sine` of many tetrahedra at once: ``corners`` (..., 4, 3) (m). The same
+    arithmetic in the same order, so each value equals :func:`min_sine`'s to the last bit."""
+    c = np.asarray(corners, dtype=np.float64)
+    p0, p1, p2, p3 = c[..., 0, :], c[..., 1, :], c[..., 2, :], c[..., 3, :]
+    e01, e02, e03, e12, e13, e23 = p1 - p0, p2 - p0, p3 - p0, p2 - p1, p3 - p1, p3 - p2
+    f0, f1, f2, f3 = (_norms(_crosses(a, b)) for a, b in ((e12, e13), (e02, e03), (e01, e03), (e01, e02)))
+    six_v = _dots(e01, _crosses(e02, e03))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sines = [six_v * _norms(e) / (fa * fb) for e, fa, fb in
+                 ((e01, f2, f3), (e02, f1, f3), (e03, f1, f2), (e12, f0, f3), (e13, f0, f2), (e23, f0, f1))]
+    least = np.minimum.reduce(sines)
+    return np.where(f0 * f1 * f2 * f3 == 0.0, 0.0, least)
+
+
 def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TARGET_ANGLE,
             twins: dict[int, int] | None = None, pinned=frozenset(), may_move=None, may_make=None) -> ImproveStats:
     """Improve live elements ``elements`` (slots) whose smallest dihedral angle is below
@@ -97,8 +114,9 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     wound (both ways; a vertex the cut did not duplicate, at the wound's front, maps to
     itself), for sliding. ``pinned``: vertices that never move, not even sliding, and whose
     elements no flip removes (a progressive cut's elements still under the blade).
-    ``may_move(v, parents, weights)``: whether smoothing may move vertex v to that combination
-    (the cutter refuses a move onto or across the cut surface, which would join the sides);
+    ``may_move(vertices, parents, weights)``: per move of ``vertices[i]`` to the combination
+    ``parents[i]``, ``weights[i]``, whether smoothing may make it (a boolean array; the cutter
+    refuses a move onto or across the cut surface, which would join the sides);
     ``may_make(tets)``: whether a flip may make these elements (vertex lists; the cutter
     refuses one with an edge across the cut surface)."""
     stats = ImproveStats()
@@ -106,51 +124,61 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     goal = math.sin(math.radians(target))
     sine = _Sines(topo)
     accept = _better(sine, may_make)
-    work = {t for t in elements if topo.alive[t]}
+    work = [t for t in elements if topo.alive[t]]
     if not work:
         return stats
-    stats.worst_before = _degrees(min(sine(t) for t in work))
+    values = sine.prime(work)
+    stats.worst_before = _degrees(float(values.min()))
+    # only a move changes an element's sine, and a move reports every element it makes or
+    # reshapes: the poor elements are those of the input and of the moves
+    poor = {t for t, q in zip(work, values.tolist()) if q < goal}
     for _ in range(PASSES):
-        poor = sorted((sine(t), t) for t in work if topo.alive[t] and sine(t) < goal)
+        queue = sorted((sine(t), t) for t in poor if topo.alive[t])
+        poor = {t for q, t in queue if q < goal}
         if not poor:
             break
         changed = False
-        for _, t in poor:
+        for _, t in queue:
             if not topo.alive[t] or sine(t) >= goal:
                 continue
             made = (twins and _slide(topo, t, twins, pinned, sine, stats)) or _flip_edges(topo, t, fixed, accept, stats) \
                 or _flip_faces(topo, t, fixed, accept, stats) or _smooth(topo, t, fixed, sine, stats, may_move)
             if made:
-                work.update(made)
+                work += made
+                poor.update(m for m, q in zip(made, sine.prime(made).tolist()) if q < goal)
                 changed = True
         if not changed:
             break
-    live = [t for t in work if topo.alive[t]]
-    stats.worst_after = _degrees(min(sine(t) for t in live)) if live else math.nan
+    live = sorted({t for t in work if topo.alive[t]})
+    stats.worst_after = _degrees(float(sine.prime(live).min())) if live else math.nan
     return stats
 
 
 class _Sines:
-    """:func:`min_sine` of live element slots (rest configuration), remembered with the
-    corners they were computed from."""
+    """:func:`min_sine` of live element slots (rest configuration), remembered. The caller
+    primes what each move makes or reshapes (moves report every such element), so a
+    remembered value is always the element's current one."""
 
     def __init__(self, topo: TetTopology):
         self.topo = topo
-        self.known: dict[int, tuple[tuple, float]] = {}
+        self.known: dict[int, float] = {}
 
     def __call__(self, t: int) -> float:
-        rest = self.topo.rest_tuples
-        corners = tuple(rest[v] for v in self.topo.tets[t].tolist())
-        hit = self.known.get(t)
-        if hit is not None and hit[0] == corners:
-            return hit[1]
-        value = min_sine(*corners)
-        self.known[t] = (corners, value)
-        return value
+        q = self.known.get(t)
+        if q is None:
+            rest = self.topo.rest_tuples
+            q = self.known[t] = min_sine(*[rest[v] for v in self.topo.tets[t].tolist()])
+        return q
+
+    def prime(self, slots) -> np.ndarray:
+        """The sines of live element slots ``slots``, computed at once and remembered."""
+        values = min_sines(self.topo.rest_positions[self.topo.tets[slots]])
+        self.known.update(zip(slots, values.tolist()))
+        return values
 
     def of(self, tets) -> float:
-        rest = self.topo.rest_tuples
-        return min(min_sine(*[rest[v] for v in tet]) for tet in tets)
+        """The worst sine of elements ``tets`` (vertex lists) that are not in the mesh yet."""
+        return float(min_sines(self.topo.rest_positions[np.asarray(tets)]).min())
 
 
 def _better(sine: _Sines, may_make=None):
@@ -168,7 +196,7 @@ def _flip_edges(topo: TetTopology, t: int, frozen: set[int], accept, stats: Impr
         if a in frozen and b in frozen:
             continue  # an edge on the cut surface stays
         try:
-            made = remove_edge(topo, a, b, accept=accept)
+            made = remove_edge(topo, a, b, accept=accept, link_faces=False)
         except TopologyError:
             continue
         stats.edge_flips += 1
@@ -183,11 +211,10 @@ def _flip_faces(topo: TetTopology, t: int, frozen: set[int], accept, stats: Impr
         key = face_key(*[tet[m] for m in range(4) if m != k])
         if all(v in frozen for v in key):
             continue  # a face on the cut surface stays
-        owners = topo.face_tets.get(key, ())
-        if len(owners) != 2 or key in topo.unsewn:
+        if key in topo.unsewn or topo.face_owner_count(*key) != 2:
             continue
         try:
-            made = flip23(topo, key, accept=accept)
+            made = flip23(topo, key, accept=accept, link_faces=False)
         except TopologyError:
             continue
         stats.face_flips += 1
@@ -198,23 +225,26 @@ def _flip_faces(topo: TetTopology, t: int, frozen: set[int], accept, stats: Impr
 def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats, may_move=None) -> list[int]:
     """Move one vertex of element t to where the worst sine of its star rises most (the best
     move that ``move_vertex`` accepts)."""
-    rest = topo.rest_tuples
+    rest = topo.rest_positions
     moves = []
     for v in topo.tet(t):
         if v in frozen:
             continue
         star = sorted(topo.vertex_tets[v])
         now = min(sine(s) for s in star)
-        for parents, weights in _candidates(topo, v, star, sine):
-            for step in STEPS:
-                full, w = _merge([v] + parents, [1.0 - step] + [step * x for x in weights])
-                p = _combine([rest[u] for u in full], w)
-                q = min(min_sine(*[p if u == v else rest[u] for u in topo.tets[s].tolist()]) for s in star)
-                if q > now:
-                    moves.append((q - now, v, full, w))
-    for _, v, parents, weights in sorted(moves, key=lambda m: -m[0]):
-        if may_move is not None and not may_move(v, parents, weights):
+        tried = [_merge([v] + parents, [1.0 - step] + [step * x for x in weights])
+                 for parents, weights in _candidates(topo, v, star, sine) for step in STEPS]
+        if not tried:
             continue
+        targets = np.array([np.asarray(w) @ rest[full] for full, w in tried])
+        for q, (full, w) in zip(_star_sines(topo, star, (v,), targets).tolist(), tried):
+            if q > now:
+                moves.append((q - now, v, full, w))
+    moves.sort(key=lambda m: -m[0])
+    if may_move is not None and moves:  # asked at once: one query of the cut surface
+        _, vertices, parents, weights = zip(*moves)
+        moves = [m for m, ok in zip(moves, may_move(vertices, parents, weights)) if ok]
+    for _, v, parents, weights in moves:
         try:
             move_vertex(topo, v, parents, weights)
         except TopologyError:
@@ -248,9 +278,8 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
             weights = [1.0 + a] + [0.0] * len(lip)
             weights[1 + nearest] = -a
             targets.append(weights)
-        for weights in targets:
-            p = _combine([rest[v]] + [rest[u] for u in lip], weights)
-            q = min(min_sine(*[p if u == v or u == w else rest[u] for u in topo.tets[s].tolist()]) for s in star)
+        points = np.array(targets) @ topo.rest_positions[[v] + lip]
+        for q, weights in zip(_star_sines(topo, star, (v, w), points).tolist(), targets):
             if q > now:
                 moves.append((q - now, v, w, lip, mirrored, weights))
     for _, v, w, lip, mirrored, weights in sorted(moves, key=lambda m: -m[0]):
@@ -264,6 +293,16 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
         stats.slid += 1
         return sorted(topo.vertex_tets[v] | topo.vertex_tets[w])
     return []
+
+
+def _star_sines(topo: TetTopology, star: list[int], moved, targets: np.ndarray) -> np.ndarray:
+    """The worst sine of elements ``star`` with vertices ``moved`` at each of ``targets`` (K, 3)
+    (rest configuration, m): (K,)."""
+    tets = topo.tets[star]
+    corners = np.repeat(topo.rest_positions[tets][None], len(targets), axis=0)  # (K, S, 4, 3)
+    at = np.isin(tets, moved)
+    corners[:, at] = targets[:, None]
+    return min_sines(corners).min(axis=1)
 
 
 def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
@@ -293,15 +332,6 @@ def _merge(parents: list[int], weights: list[float]) -> tuple[list[int], list[fl
     return list(merged), [w / total for w in merged.values()]
 
 
-def _combine(points, weights):
-    x = y = z = 0.0
-    for (px, py, pz), w in zip(points, weights):
-        x += w * px
-        y += w * py
-        z += w * pz
-    return x, y, z
-
-
 def _degrees(sine: float) -> float:
     return math.degrees(math.asin(max(-1.0, min(1.0, sine))))
 
@@ -320,3 +350,18 @@ def _dot(a, b) -> float:
 
 def _norm(a) -> float:
     return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
+def _crosses(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    x = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    y = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    z = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return np.stack((x, y, z), axis=-1)
+
+
+def _dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def _norms(a: np.ndarray) -> np.ndarray:
+    return np.sqrt(a[..., 0] * a[..., 0] + a[..., 1] * a[..., 1] + a[..., 2] * a[..., 2])

@@ -232,6 +232,13 @@ class TetTopology:
         vertex_tets = self.vertex_tets
         return len(vertex_tets[a] & vertex_tets[b] & vertex_tets[c])
 
+    def face_owners(self, key) -> list[int]:
+        """The elements of face ``key`` (any vertex order), ascending: from the vertex stars, so
+        it never waits for the face adjacency (the mesh improvement's flips read only these)."""
+        a, b, c = key
+        vertex_tets = self.vertex_tets
+        return sorted(vertex_tets[a] & vertex_tets[b] & vertex_tets[c])
+
     def live_tets(self) -> np.ndarray:
         """Slots of the live elements, ascending (the order of :meth:`to_mesh`)."""
         if not self._free:  # no freed slot waits for reuse: every slot below slot_count lives
@@ -313,15 +320,18 @@ class TetTopology:
         around = self.edge_tets(a, b)
         if not around:
             raise TopologyError(f"edge ({a}, {b}) is not in the mesh")
-        tets, face_tets, unsewn = self.tets, self.face_tets, self.unsewn
+        tets, unsewn = self.tets, self.unsewn
         others = {t: [v for v in tets[t].tolist() if v != a and v != b] for t in around}
+        holders: dict[int, list[int]] = {}  # the elements of face (a, b, w), by w: no face adjacency needed
+        for t, (u, w) in others.items():
+            holders.setdefault(u, []).append(t)
+            holders.setdefault(w, []).append(t)
 
         def across(t, w):
             """The element across face (a, b, w) of element t; -1 on the boundary or unsewn."""
-            key = face_key(a, b, w)
-            if key in unsewn:
+            if unsewn and face_key(a, b, w) in unsewn:
                 return -1
-            for s in face_tets[key]:
+            for s in holders[w]:
                 if s != t:
                     return s
             return -1
@@ -514,8 +524,8 @@ class TetTopology:
         :func:`tet_quality` (the operator computed them to check them), remembered for
         :meth:`quality`.
 
-        ``link_faces=False`` (a write-back of the compiled operators, whose own queries use the
-        vertex stars) leaves the face adjacency (``face_tets``, ``slot_face_keys``) to be
+        ``link_faces=False`` (a write-back of the compiled operators, or a flip of the mesh
+        improvement: their own queries use the vertex stars) leaves the face adjacency (``face_tets``, ``slot_face_keys``) to be
         brought up to date when it is next read, exactly as linking now would have left it;
         the vertex stars are up to date at once. Only while no face is unsewn (linking can
         then not change ``unsewn``).

@@ -288,15 +288,16 @@ def split_face(topo: TetTopology, key: tuple[int, int, int], weights) -> tuple[i
 
 
 def flip23(topo: TetTopology, key: tuple[int, int, int], quality_drop: float | None = None, *,
-           accept=None) -> list[int]:
+           accept=None, link_faces: bool = True) -> list[int]:
     """2-3 flip (thesis figure 5.2): the two elements on interior face ``key`` = (a, b, c),
     with apices d and e, become (d, e, a, b), (d, e, b, c), (d, e, c, a) around edge (d, e).
     Refused unless segment d-e passes through the face, and, with ``quality_drop``, unless
     the worst new element's quality (float64, rest) is at least ``quality_drop`` times that
     of the worse of the two elements it replaces (a flip can make a sliver next to a good
     element), and, with ``accept`` (mesh improvement), unless ``accept(removed, added)`` (slots,
-    vertex lists) is true. Returns the new elements."""
-    owners = topo.face_tets.get(key, ())
+    vertex lists) is true. ``link_faces``: as in :meth:`TetTopology.replace_tets`. Returns the
+    new elements."""
+    owners = topo.face_owners(key)
     if len(owners) != 2 or key in topo.unsewn:
         raise TopologyError(f"flip 2-3 of face {key}: not an interior face")
     t0, t1 = owners
@@ -319,7 +320,7 @@ def flip23(topo: TetTopology, key: tuple[int, int, int], quality_drop: float | N
                                 f"of the quality of the worse element it replaces")
     if accept is not None and not accept([t0, t1], added):
         raise TopologyError(f"flip 2-3 of face {key}: not an improvement")
-    return topo.replace_tets([t0, t1], added, _containing(topo, [t0, t1], added), qualities)
+    return topo.replace_tets([t0, t1], added, _containing(topo, [t0, t1], added), qualities, link_faces=link_faces)
 
 
 def bisect_edge(topo: TetTopology, a: int, b: int, s: float) -> tuple[int, list[int]]:
@@ -343,7 +344,8 @@ def bisect_edge(topo: TetTopology, a: int, b: int, s: float) -> tuple[int, list[
 
 
 def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool = False,
-                volume_tolerance: float = 1e-12, canonical: bool = False, accept=None) -> list[int]:
+                volume_tolerance: float = 1e-12, canonical: bool = False, accept=None,
+                link_faces: bool = True) -> list[int]:
     """General flip, or edge removal (thesis figure 5.3): the n elements around edge (a, b)
     become 2(n - 2) elements (a, tau) and (b, tau) over a triangulation tau of the polygon of
     their other vertices (closed for an interior edge; closed by one more edge for a
@@ -355,8 +357,8 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     ``volume_tolerance`` unless ``allow_volume_change``. Between equally good triangulations
     the choice depends on where the polygon starts: ``canonical`` starts it as the compiled
     operator does (``TetTopology.edge_ring``). With ``accept`` (mesh improvement) it is
-    refused unless ``accept(removed, added)`` (slots, vertex lists) is true. Returns the new
-    elements.
+    refused unless ``accept(removed, added)`` (slots, vertex lists) is true. ``link_faces``: as
+    in :meth:`TetTopology.replace_tets`. Returns the new elements.
     """
     ring, polygon, closed = topo.edge_ring(a, b, canonical)
     rest = topo.rest_tuples
@@ -395,7 +397,8 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
         if abs(after - before) > volume_tolerance * before and not allow_volume_change:
             raise TopologyError(f"general flip of boundary edge ({a}, {b}) would change the volume by "
                                 f"{(after - before) / before:.1e} (its boundary faces are not coplanar)")
-    return topo.replace_tets(ring, added, _containing(topo, ring, added, hints + hints), qualities)
+    return topo.replace_tets(ring, added, _containing(topo, ring, added, hints + hints), qualities,
+                             link_faces=link_faces)
 
 
 def _polygon_qualities(corners: list, rest_a, rest_b) -> list:
