@@ -122,6 +122,7 @@ def test_the_blade_refuses_bad_positions_and_stale_states():
 
     with pytest.raises(CutError, match="improve is for linear elements"):
         wcut.Blade(to_quadratic(mesh), improve=True)
+    assert blade.cutter.improve and not wcut.Blade(to_quadratic(mesh)).cutter.improve  # the default: where it applies
     state = model.state()
     assert blade.cut(state, [0.041, -0.01, 0.05], [0.041, 0.05, 0.05]) is None  # placed
     blade.lift()

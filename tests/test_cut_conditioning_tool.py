@@ -109,14 +109,14 @@ def test_sparse_and_dense_spectra_agree(tool):
     assert dense[1] / dense[0] > 10.0 * uncut  # the cut made slivers
 
 
-def test_the_improvement_option_runs_and_keeps_the_mesh_valid(tool, tmp_path):
-    """``--improve``: the same progressive cut with local mesh improvement after each step
-    (each step's mesh is checked inside the tool: valid, volume kept); the beam still comes
+def test_the_cut_without_improvement_runs_and_keeps_the_mesh_valid(tool, tmp_path):
+    """``--no-improve``: the same progressive cut without the local mesh improvement after each
+    step (each step's mesh is checked inside the tool: valid, volume kept); the beam still comes
     apart."""
     mesh_path = tmp_path / "beam.vtu"
     wcut.beam(4, 2, 2, size=(0.16, 0.04, 0.04)).save(mesh_path)
     out = tmp_path / "out"
-    assert tool.main(["--quick", "--quiet", "--improve", "--methods", "paulus", "--epsilons", "0",
+    assert tool.main(["--quick", "--quiet", "--no-improve", "--methods", "paulus", "--epsilons", "0",
                       "--mesh", str(mesh_path), "--out-dir", str(out)]) == 0
     with open(out / tool.CSV_NAME, newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))

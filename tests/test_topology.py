@@ -736,6 +736,27 @@ def test_random_operator_sequences_keep_the_mesh_valid(data):
     check_change(topo.end_change(), before, topo, parents=False)
 
 
+@settings(max_examples=30, **FAST)
+@given(data=st.data())
+def test_the_boundary_faces_at_a_vertex_are_its_faces_of_one_element(data):
+    """After random operations (unsewn faces and copies among them), the boundary faces through
+    each vertex, counted in its star alone, are the faces through it that one element holds,
+    ordered as that element's outward face; ``is_boundary_vertex`` and ``is_boundary_edge``
+    agree with them."""
+    topo = topology("beam")
+    for _ in range(data.draw(st.integers(0, 8))):
+        operator, args = _random_operation(topo, data)
+        attempt(topo, operator, *args)
+    for v in range(topo.vertex_count):
+        expected = {tri for t in topo.vertex_tets[v] for tri in map(tuple, topo.tets[t][TET_FACES].tolist())
+                    if v in tri and topo.face_owner_count(*tri) == 1}
+        found = topo.boundary_faces_at(v)
+        assert len(found) == len(expected) and set(found) == expected
+        assert topo.is_boundary_vertex(v) == bool(expected)
+        for u in {u for tri in found for u in tri} - {v}:
+            assert topo.is_boundary_edge(v, u)
+
+
 @pytest.mark.parametrize("name", sorted(MESHES))
 def test_new_topology_links_its_faces_when_read_as_at_once(name):
     """A new topology links its faces when they are first read (a compiled cut never reads

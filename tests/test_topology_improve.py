@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from wcut.cut import Cutter, Plane
 from wcut.mesh import TetMesh, beam, dihedral_angles, perturbed
 from wcut.topology import TetTopology, check_topology
-from wcut.topology.improve import improve, min_sine
+from wcut.topology.improve import improve, min_sine, min_sines
 
 POOR = perturbed(beam(5, 4, 4, size=(0.05, 0.04, 0.04)), 1.0, seed=1)  # worst dihedral 0.52 degrees
 
@@ -29,6 +29,18 @@ def test_min_sine_is_the_smallest_sine_of_the_dihedral_angles(values):
     expected = np.sin(np.radians(dihedral_angles(p, np.array([[0, 1, 2, 3]])))).min()
     assert math.isclose(min_sine(*map(tuple, p)), expected, rel_tol=1e-9, abs_tol=1e-12)
     assert min_sine(*map(tuple, p[[1, 0, 2, 3]])) < 0  # inverted: negative
+
+
+@settings(max_examples=50, deadline=None, derandomize=True)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=24, max_size=24), st.integers(0, 3), st.integers(0, 3))
+def test_min_sines_equal_min_sine_to_the_last_bit(values, a, b):
+    """The batched sines the improvement ranks its candidates by are the scalar ones, bit for
+    bit, degenerate elements (two corners at one point: 0) included."""
+    p = np.array(values).reshape(2, 4, 3)
+    p[1, a] = p[1, b]
+    expected = [min_sine(*map(tuple, corners)) for corners in p]
+    assert min_sines(p).tolist() == expected
+    assert min_sines(p[None])[0].tolist() == expected
 
 
 def _worst_angle(topo) -> float:
@@ -61,12 +73,15 @@ def test_improving_a_poor_mesh_raises_its_worst_angle_and_keeps_boundary_and_vol
 
 
 def test_a_cut_with_improvement_keeps_its_surface_and_separates():
+    """A cut improves by default. Its flips walk the vertex stars: a compiled cut never links
+    the face adjacency, the improvement's flips included."""
     plane = Plane([0.026, 0.019, 0.021], [1.0, 0.3, -0.2])
     plain, improved = TetTopology(POOR), TetTopology(POOR)
-    Cutter(plain, epsilon=0.1).cut(plane)
-    cutter = Cutter(improved, epsilon=0.1, improve=True)
+    Cutter(plain, epsilon=0.1, improve=False).cut(plane)
+    cutter = Cutter(improved, epsilon=0.1)
     stats = cutter.cut(plane).stats
-    check_topology(improved, POOR.volumes().sum(), volume_tolerance=1e-12)
+    assert stats.improved_edge_flips > 0 and not improved._face_tets  # not linked yet
+    check_topology(improved, POOR.volumes().sum(), volume_tolerance=1e-12)  # (links them)
     assert stats.improved_edge_flips + stats.improved_face_flips + stats.smoothed_vertices > 0
     # the vertices on the cut plane are where the cut put them
     x = improved.rest_positions[improved.live_tets().size and np.unique(improved.tets[improved.live_tets()])]

@@ -70,7 +70,7 @@ def test_compiled_cut_equals_the_python_operators(point, normal, epsilon):
     with canonical_general_flips():
         for compiled in (False, True):
             topo = TetTopology(mesh)
-            result = Cutter(topo, epsilon=epsilon, compiled=compiled).cut(plane)
+            result = Cutter(topo, epsilon=epsilon, compiled=compiled, improve=False).cut(plane)
             check_topology(topo)
             stats = dataclasses.asdict(result.stats)
             stats["refused"] = len(stats["refused"])

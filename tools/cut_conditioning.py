@@ -11,7 +11,7 @@ subdivision (``bielser``) are compared, each with the snapping thresholds epsilo
 Run::
 
     .venv/bin/python tools/cut_conditioning.py [--mesh scenes/meshes/beam371.vtu] [--out-dir out/]
-        [--steps 30] [--epsilons 0 0.1 0.2 0.3] [--methods paulus bielser] [--offset 0.05] [--improve]
+        [--steps 30] [--epsilons 0 0.1 0.2 0.3] [--methods paulus bielser] [--offset 0.05] [--no-improve]
         [--quick]
 
 If ``--mesh`` is not given and the default mesh does not exist, a generated
@@ -112,9 +112,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--dt", type=float, default=0.01, help="time step in s (default 0.01)")
     p.add_argument("--dense", action="store_true",
                    help=f"always compute the spectrum densely (else only up to {DENSE_MAX_DOFS} free dofs)")
-    p.add_argument("--improve", action="store_true",
-                   help="local mesh improvement after each cut step (wcut.topology.improve); compare with a "
-                        "run without it")
+    p.add_argument("--no-improve", dest="improve", action="store_false",
+                   help="no local mesh improvement after each cut step (wcut.topology.improve, on by default): "
+                        "the thesis's cutter alone")
     p.add_argument("--quick", action="store_true", help="8 steps, epsilon 0 and 0.2 only (for tests)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)

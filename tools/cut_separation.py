@@ -13,7 +13,7 @@ earlier cuts).
 Run::
 
     .venv/bin/python tools/cut_separation.py [MESH ...] [--cuts 40] [--chain 1] [--methods paulus bielser]
-        [--epsilons 0 0.1] [--seed 0] [--improve] [--csv out.csv]
+        [--epsilons 0 0.1] [--seed 0] [--no-improve] [--csv out.csv]
 
 Without meshes: SOFA's in ``../shared/meshes`` where the checkout has them, the project's
 organ, and two poor meshes made here (:func:`poor_meshes`).
@@ -64,7 +64,7 @@ def random_plane(mesh: TetMesh, rng) -> Plane:
     return Plane(point, normal)
 
 
-def one(mesh: TetMesh, planes: list[Plane], method: str, epsilon: float, improve: bool = False) -> dict:
+def one(mesh: TetMesh, planes: list[Plane], method: str, epsilon: float, improve: bool = True) -> dict:
     topo = TetTopology(mesh)
     cutter = Cutter(topo, method=method, epsilon=epsilon, improve=improve)
     volume = float(mesh.volumes().sum())
@@ -102,7 +102,8 @@ def main(argv=None) -> int:
     parser.add_argument("--methods", nargs="+", default=["paulus", "bielser"])
     parser.add_argument("--epsilons", nargs="+", type=float, default=[0.0, 0.1])
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--improve", action="store_true", help="local mesh improvement after each cut")
+    parser.add_argument("--no-improve", dest="improve", action="store_false",
+                        help="no local mesh improvement after each cut (on by default)")
     parser.add_argument("--csv")
     args = parser.parse_args(argv)
     rows = []

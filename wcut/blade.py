@@ -42,7 +42,8 @@ class Blade:
             :class:`~wcut.quadratic.QuadraticTetMesh` (its corners are cut, its edge nodes
             placed after, thesis 6.1); the blade keeps its own copy of the topology.
         method, epsilon, improve: the cutter's (:class:`wcut.cut.Cutter`); ``improve`` (local
-            mesh improvement after each increment) for linear elements only.
+            mesh improvement after each increment) is for linear elements only: by default on
+            for them, off for quadratic ones.
         samples: points along the blade mapped to the rest configuration each frame; by
             default one every half mean edge length of the blade's first position (at least 3,
             at most :data:`MAX_SAMPLES`), so the mapped blade follows the body's bending.
@@ -53,7 +54,7 @@ class Blade:
         last_increment: the surface (rest configuration) swept in the last :meth:`cut`, or None.
     """
 
-    def __init__(self, mesh, *, method: str = "paulus", epsilon: float = 0.1, improve: bool = False,
+    def __init__(self, mesh, *, method: str = "paulus", epsilon: float = 0.1, improve: bool | None = None,
                  samples: int | None = None):
         if getattr(mesh, "order", 1) == 2:
             if improve:
@@ -62,7 +63,7 @@ class Blade:
             self.quadratic, self._linear = QuadraticCutter(mesh, method=method, epsilon=epsilon), None
         else:
             self.quadratic, self._linear = None, Cutter(TetTopology(mesh), method=method, epsilon=epsilon,
-                                                        improve=improve)
+                                                        improve=improve is None or bool(improve))
         if samples is not None and not (isinstance(samples, (int, np.integer)) and samples >= 2):
             raise CutError(f"Blade: samples must be an integer of at least 2, got {samples!r}")
         self.samples = None if samples is None else int(samples)

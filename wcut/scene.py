@@ -52,12 +52,12 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
     [cut]           a blade that cuts the object progressively (thesis chapter 5):
                     method ("paulus", "bielser", "snap", "delete"), epsilon (snapping threshold,
                     fraction of the mean edge length), improve (local mesh improvement after
-                    each frame's cut, linear elements only; default false: it runs in Python,
-                    some 16 ms per frame on organ_cut), frames = [f0, f1, ...] (key frames),
-                    blade = [[[x,y,z],[x,y,z]], ...] (its two endpoints at each key frame, m;
-                    linear in between). From f0 on, each frame cuts along the surface the
-                    blade swept since the previous frame, in the current configuration.
-                    Solids only: a shell is not cut by a blade.
+                    each frame's cut, linear elements only; default: on for them),
+                    frames = [f0, f1, ...] (key frames), blade = [[[x,y,z],[x,y,z]], ...]
+                    (its two endpoints at each key frame, m; linear in between). From f0 on,
+                    each frame cuts along the surface the blade swept since the previous
+                    frame, in the current configuration. Solids only: a shell is not cut by a
+                    blade.
 """
 
 from __future__ import annotations
@@ -182,7 +182,7 @@ DEFAULT_THICKNESS = 1.0e-3
 _SHEET_CELLS = [8, 8]
 _SHEET_SIZE = [0.2, 0.2]
 
-_CUT_SCHEMA = {"method": (_string, "paulus"), "epsilon": (_number, 0.1), "improve": (_boolean, False),
+_CUT_SCHEMA = {"method": (_string, "paulus"), "epsilon": (_number, 0.1), "improve": (_boolean, None),
                "frames": (_list_of(_integer), None), "blade": (None, None)}
 _FORCE_SCHEMA = {"box": (_box, None), "total": (_vec3, None)}
 _ATTACHMENT_SCHEMA = {"point": (_vec3, None), "vertex": (_integer, None), "box": (_box, None),

@@ -59,6 +59,12 @@ AWAY = (1.0, 0.5)
 
 #: The six edges of a tetrahedron, as local vertex pairs.
 _EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+_EDGE_TAILS, _EDGE_HEADS = np.array(_EDGES).T
+#: twice the area of the face opposite corner k: |e_u x e_v| with these edges (min_sine's order)
+_FACE_U, _FACE_V = np.array([3, 1, 0, 0]), np.array([4, 2, 2, 1])
+#: the two faces (opposite these corners) that meet at each edge
+_EDGE_FACE_A, _EDGE_FACE_B = np.array([2, 1, 1, 0, 0, 0]), np.array([3, 3, 2, 3, 2, 1])
+_NEXT, _AFTER = np.array([1, 2, 0]), np.array([2, 0, 1])
 
 
 @dataclass
@@ -95,15 +101,13 @@ def min_sines(corners: np.ndarray) -> np.ndarray:
     """:func:`min_sine` of many tetrahedra at once: ``corners`` (..., 4, 3) (m). The same
     arithmetic in the same order, so each value equals :func:`min_sine`'s to the last bit."""
     c = np.asarray(corners, dtype=np.float64)
-    p0, p1, p2, p3 = c[..., 0, :], c[..., 1, :], c[..., 2, :], c[..., 3, :]
-    e01, e02, e03, e12, e13, e23 = p1 - p0, p2 - p0, p3 - p0, p2 - p1, p3 - p1, p3 - p2
-    f0, f1, f2, f3 = (_norms(_crosses(a, b)) for a, b in ((e12, e13), (e02, e03), (e01, e03), (e01, e02)))
-    six_v = _dots(e01, _crosses(e02, e03))
+    edges = c[..., _EDGE_HEADS, :] - c[..., _EDGE_TAILS, :]  # e01 e02 e03 e12 e13 e23
+    doubled = _norms(_crosses(edges[..., _FACE_U, :], edges[..., _FACE_V, :]))  # F0..F3
+    six_v = _dots(edges[..., 0, :], _crosses(edges[..., 1, :], edges[..., 2, :]))
     with np.errstate(divide="ignore", invalid="ignore"):
-        sines = [six_v * _norms(e) / (fa * fb) for e, fa, fb in
-                 ((e01, f2, f3), (e02, f1, f3), (e03, f1, f2), (e12, f0, f3), (e13, f0, f2), (e23, f0, f1))]
-    least = np.minimum.reduce(sines)
-    return np.where(f0 * f1 * f2 * f3 == 0.0, 0.0, least)
+        sines = six_v[..., None] * _norms(edges) / (doubled[..., _EDGE_FACE_A] * doubled[..., _EDGE_FACE_B])
+    least = sines.min(axis=-1)
+    return np.where(doubled.prod(axis=-1) == 0.0, 0.0, least)
 
 
 def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TARGET_ANGLE,
@@ -149,9 +153,17 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
                 changed = True
         if not changed:
             break
-    live = sorted({t for t in work if topo.alive[t]})
-    stats.worst_after = _degrees(float(sine.prime(live).min())) if live else math.nan
+    live = {t for t in work if topo.alive[t]}
+    stats.worst_after = _degrees(min(sine(t) for t in live)) if live else math.nan  # (all primed)
     return stats
+
+
+def has_poor(topo: TetTopology, elements, target: float = TARGET_ANGLE) -> bool:
+    """Whether one of live elements ``elements`` (slots) has a dihedral angle below ``target``
+    (degrees): whether :func:`improve` has anything to do (a caller may skip setting it up)."""
+    slots = np.fromiter(elements, np.int64)
+    return len(slots) > 0 and float(min_sines(topo.rest_positions[topo.tets[slots]]).min()) < \
+        math.sin(math.radians(target))
 
 
 class _Sines:
@@ -265,13 +277,13 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
         w = twins.get(v, v)
         if w == v or v in pinned or w in pinned:
             continue
+        on_lip = _boundary_neighbours(topo, v)
+        lip = [u for u in {u for s in topo.vertex_tets[v] for u in topo.tets[s].tolist()} - {v} if u in on_lip]
+        mirrored = [twins.get(u, u) for u in lip]
+        if not lip or not _boundary_neighbours(topo, w).issuperset(mirrored):
+            continue  # the lips' fans around v and w do not match
         star = sorted(topo.vertex_tets[v] | topo.vertex_tets[w])
         now = min(sine(s) for s in star)
-        lip = [u for u in {u for s in topo.vertex_tets[v] for u in topo.tets[s].tolist()} - {v}
-               if topo.is_boundary_edge(v, u)]
-        mirrored = [twins.get(u, u) for u in lip]
-        if not lip or any(not topo.is_boundary_edge(w, u) for u in mirrored):
-            continue  # the lips' fans around v and w do not match
         nearest = min(range(len(lip)), key=lambda i: _norm(_sub(rest[lip[i]], rest[v])))
         targets = [[1.0 - step] + [step / len(lip)] * len(lip) for step in STEPS]
         for a in AWAY:  # from the nearest neighbour on the lip, along their edge
@@ -283,13 +295,12 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
             if q > now:
                 moves.append((q - now, v, w, lip, mirrored, weights))
     for _, v, w, lip, mirrored, weights in sorted(moves, key=lambda m: -m[0]):
-        try:
-            check_vertex_move(topo, v, [v] + lip, weights)
-            check_vertex_move(topo, w, [w] + mirrored, weights)
+        try:  # both checked before either moves (w's star does not hold v: the checks stand)
+            checked = check_vertex_move(topo, v, [v] + lip, weights), check_vertex_move(topo, w, [w] + mirrored, weights)
         except TopologyError:
             continue
-        move_vertex(topo, v, [v] + lip, weights)
-        move_vertex(topo, w, [w] + mirrored, weights)
+        topo.set_vertex(v, [v] + lip, checked[0])
+        topo.set_vertex(w, [w] + mirrored, checked[1])
         stats.slid += 1
         return sorted(topo.vertex_tets[v] | topo.vertex_tets[w])
     return []
@@ -311,16 +322,25 @@ def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
     vertex, which keeps it in a flat boundary's plane) and, inside, v pushed away from the
     face opposite it in its worst element by a quarter of its distance from that face's
     centroid."""
-    boundary = topo.is_boundary_vertex(v)
+    on_boundary = _boundary_neighbours(topo, v)
+    boundary = bool(on_boundary)
     neighbours = sorted({u for s in star for u in topo.tets[s].tolist()} - {v})
     if boundary:
-        neighbours = [u for u in neighbours if topo.is_boundary_edge(v, u)]
+        neighbours = [u for u in neighbours if u in on_boundary]
     if neighbours:
         yield neighbours, [1.0 / len(neighbours)] * len(neighbours)
     if not boundary:
         worst = min(star, key=sine)
         face = [u for u in topo.tets[worst].tolist() if u != v]
         yield [v] + face, [1.25] + [-0.25 / 3.0] * 3
+
+
+def _boundary_neighbours(topo: TetTopology, v: int) -> set[int]:
+    """The vertices joined to v by an edge of a boundary face (``TetTopology.is_boundary_edge``
+    for all v's edges at once)."""
+    found = {u for face in topo.boundary_faces_at(v) for u in face}
+    found.discard(v)
+    return found
 
 
 def _merge(parents: list[int], weights: list[float]) -> tuple[list[int], list[float]]:
@@ -353,10 +373,8 @@ def _norm(a) -> float:
 
 
 def _crosses(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    x = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    y = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    z = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return np.stack((x, y, z), axis=-1)
+    """Cross products along the last axis (a faster np.cross for small arrays, the same bits)."""
+    return a[..., _NEXT] * b[..., _AFTER] - a[..., _AFTER] * b[..., _NEXT]
 
 
 def _dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -43,6 +43,11 @@ from scipy.spatial import cKDTree
 from ..errors import WcutError
 from ..mesh import TET_FACES, TetMesh, unique_rows
 
+#: per local vertex, the TET_FACES through it, each with the local indices of its two other
+#: vertices: (i, j, k, a, b)
+_FACES_THROUGH = tuple(tuple((*face, *[u for u in face if u != local]) for face in TET_FACES.tolist() if local in face)
+                       for local in range(4))
+
 #: Columns of ``vertex_data``.
 REST, POSITION, VELOCITY = slice(0, 3), slice(3, 6), slice(6, 9)
 
@@ -381,14 +386,22 @@ class TetTopology:
         return any(self.face_owner_count(a, b, c) == 1
                    for t in self.edge_tets(a, b) for c in self.tets[t].tolist() if c != a and c != b)
 
-    def is_boundary_vertex(self, v: int) -> bool:
+    def boundary_faces_at(self, v: int) -> list[tuple[int, int, int]]:
+        """The boundary faces through vertex v (unsewn faces are not counted), each ordered as
+        its element's :data:`TET_FACES` order it (outward). Every element with a face through v
+        is in v's star, so counting the faces there gives their owners: the cost of one star."""
+        found: dict[tuple, tuple | None] = {}  # by the face's two other vertices, sorted
+        tets = self.tets
         for t in self.vertex_tets[v]:
-            tet = self.tets[t]
-            for local in TET_FACES:
-                tri = tet[local].tolist()
-                if v in tri and self.face_owner_count(*tri) == 1:
-                    return True
-        return False
+            tet = tets[t].tolist()
+            for i, j, k, a, b in _FACES_THROUGH[tet.index(v)]:
+                key = (tet[a], tet[b]) if tet[a] < tet[b] else (tet[b], tet[a])
+                found[key] = None if key in found else (tet[i], tet[j], tet[k])
+        return [tri for tri in found.values() if tri is not None]
+
+    def is_boundary_vertex(self, v: int) -> bool:
+        """Whether vertex v lies on a boundary face (unsewn faces are not counted)."""
+        return bool(self.boundary_faces_at(v))
 
     def rest_points(self, points) -> np.ndarray:
         """Map points of the current configuration (m) to the rest configuration (m).

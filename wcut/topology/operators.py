@@ -27,9 +27,6 @@ from .mesh import (REST, TetTopology, TopologyError, rounded32, signed_volume, t
 #: overhead (some 40 array operations) exceeds the arithmetic of a few elements.
 SMALL_BATCH = 16
 
-#: The faces of an element (as in ``wcut.mesh.TET_FACES``) as tuples, for plain-Python loops.
-_FACES = ((1, 2, 3), (0, 3, 2), (0, 1, 3), (0, 2, 1))
-
 
 _quality = tet_quality  # the short name the operators use
 
@@ -498,13 +495,7 @@ def check_vertex_move(topo: TetTopology, v: int, parents, weights, *, feature_an
 def _boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
     """Unit normals (K, 3) of the boundary faces around vertex v."""
     rest = topo.rest_tuples
-    normals = []
-    for t in topo.vertex_tets[v]:
-        tet = topo.tet(t)
-        for i, j, k in _FACES:
-            tri = (tet[i], tet[j], tet[k])
-            if v in tri and topo.face_owner_count(*tri) == 1:
-                normals.append(_unit_normal(rest[tri[0]], rest[tri[1]], rest[tri[2]]))
+    normals = [_unit_normal(rest[a], rest[b], rest[c]) for a, b, c in topo.boundary_faces_at(v)]
     return np.array(normals).reshape(-1, 3)
 
 
