@@ -1,5 +1,7 @@
 """The public blade (wcut.Blade) in a user's own loop, with wcut.apply_change."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -120,9 +122,12 @@ def test_the_blade_refuses_bad_positions_and_stale_states():
         wcut.Blade(mesh, samples=1)
     from wcut.quadratic import to_quadratic
 
-    with pytest.raises(CutError, match="improve is for linear elements"):
-        wcut.Blade(to_quadratic(mesh), improve=True)
-    assert blade.cutter.improve and not wcut.Blade(to_quadratic(mesh)).cutter.improve  # the default: where it applies
+    curved = wcut.QuadraticTetMesh.load(Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "organ_p2.vtu")
+    with pytest.raises(CutError, match="improve needs straight quadratic elements"):
+        wcut.Blade(curved, improve=True)
+    # the improvement by default, where it applies
+    assert blade.cutter.improve and wcut.Blade(to_quadratic(mesh)).cutter.improve
+    assert not wcut.Blade(curved).cutter.improve and not wcut.Blade(mesh, improve=False).cutter.improve
     state = model.state()
     assert blade.cut(state, [0.041, -0.01, 0.05], [0.041, 0.05, 0.05]) is None  # placed
     blade.lift()

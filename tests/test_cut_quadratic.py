@@ -263,3 +263,28 @@ def test_a_cut_that_would_fold_an_element_is_refused_and_undone(organ, monkeypat
     result = cutter.cut(plane)
     assert_valid(cutter, organ, result)
     assert connected_components(result.mesh.linear()).max() == 1
+
+
+def test_straight_elements_are_improved_and_curved_ones_refuse_it(organ):
+    """The corners of a straight quadratic mesh (a beam of perturbed elements) are improved
+    after a cut as a linear mesh is: the worst corner element is better than without, the
+    nodes are placed exactly and the volume kept to rounding. A curved mesh leaves the
+    improvement out by default and refuses it when asked."""
+    from wcut.cut.quadratic import is_straight
+    from wcut.mesh import dihedral_angles, perturbed
+
+    mesh = to_quadratic(perturbed(beam(5, 4, 4, size=(0.05, 0.04, 0.04)), 1.0, seed=0))
+    assert is_straight(mesh) and not is_straight(organ)
+    plane = Plane([0.026, 0.019, 0.021], [1.0, 0.3, -0.2])
+    worst = []
+    for improve in (False, None):
+        cutter = QuadraticCutter(mesh, epsilon=0.1, improve=improve)
+        result = cutter.cut(plane)
+        assert_valid(cutter, mesh, result)
+        assert abs(result.mesh.volumes().sum() - mesh.volumes().sum()) <= 1e-12 * mesh.volumes().sum()
+        corners = result.mesh.linear()
+        worst.append(float(dihedral_angles(corners.vertices, corners.tets).min()))
+    assert cutter.cutter.improve and worst[1] > worst[0]
+    assert not QuadraticCutter(organ).cutter.improve
+    with pytest.raises(CutError, match="improve needs straight quadratic elements"):
+        QuadraticCutter(organ, improve=True)

@@ -41,9 +41,10 @@ class Blade:
         mesh: the body's rest mesh, a :class:`~wcut.mesh.TetMesh` or a
             :class:`~wcut.quadratic.QuadraticTetMesh` (its corners are cut, its edge nodes
             placed after, thesis 6.1); the blade keeps its own copy of the topology.
-        method, epsilon, improve: the cutter's (:class:`wcut.cut.Cutter`); ``improve`` (local
-            mesh improvement after each increment) is for linear elements only: by default on
-            for them, off for quadratic ones.
+        method, epsilon, improve: the cutter's (:class:`wcut.cut.Cutter`,
+            :class:`wcut.cut.quadratic.QuadraticCutter`); ``improve`` (local mesh improvement
+            after each increment) is on by default, but for curved quadratic elements, which
+            refuse it.
         samples: points along the blade mapped to the rest configuration each frame; by
             default one every half mean edge length of the blade's first position (at least 3,
             at most :data:`MAX_SAMPLES`), so the mapped blade follows the body's bending.
@@ -57,10 +58,7 @@ class Blade:
     def __init__(self, mesh, *, method: str = "paulus", epsilon: float = 0.1, improve: bool | None = None,
                  samples: int | None = None):
         if getattr(mesh, "order", 1) == 2:
-            if improve:
-                raise CutError("Blade: improve is for linear elements; the corners of quadratic elements are "
-                               "not improved (moving one would have to keep the curved elements unfolded)")
-            self.quadratic, self._linear = QuadraticCutter(mesh, method=method, epsilon=epsilon), None
+            self.quadratic, self._linear = QuadraticCutter(mesh, method=method, epsilon=epsilon, improve=improve), None
         else:
             self.quadratic, self._linear = None, Cutter(TetTopology(mesh), method=method, epsilon=epsilon,
                                                         improve=improve is None or bool(improve))

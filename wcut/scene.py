@@ -52,7 +52,7 @@ Layout (all sections but ``[mesh]`` are optional; units SI)::
     [cut]           a blade that cuts the object progressively (thesis chapter 5):
                     method ("paulus", "bielser", "snap", "delete"), epsilon (snapping threshold,
                     fraction of the mean edge length), improve (local mesh improvement after
-                    each frame's cut, linear elements only; default: on for them),
+                    each frame's cut; default: on, but for curved quadratic elements),
                     frames = [f0, f1, ...] (key frames), blade = [[[x,y,z],[x,y,z]], ...]
                     (its two endpoints at each key frame, m; linear in between). From f0 on,
                     each frame cuts along the surface the blade swept since the previous

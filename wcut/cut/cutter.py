@@ -219,8 +219,9 @@ class Cutter:
             the boundary, the lips' match and the volume stay as they are, and the elements a
             progressive blade is still in are left for its next increment. On by default; it
             costs some 6 ms per increment of ``organ_cut``'s blade and 30 ms per plane cut of
-            the organ at epsilon 0.1 (``tools/cut_separation.py``). Not for the corners of
-            quadratic elements.
+            the organ at epsilon 0.1 (``tools/cut_separation.py``). The corners of quadratic
+            elements are improved only where every element is straight
+            (:class:`~wcut.cut.quadratic.QuadraticCutter`).
     """
 
     def __init__(self, topology: TetTopology, method: str = "paulus", epsilon: float = 0.1,
@@ -327,7 +328,7 @@ class Cutter:
                 bielser_cut(self, surface, slots, stats)
             else:
                 self._remesh(surface, slots, stats)
-            if self.improve and self.method != "delete":
+            if self.improve and self.flips and self.method != "delete":
                 self._improve(surface, stats)
             if self.method != "delete" and type(surface) is Plane and bounds is None and not progressive:
                 self._separate(surface, stats)  # (after the improvement: what a move joined, it splits)

@@ -88,6 +88,14 @@ def has_flat_boundary(mesh: QuadraticTetMesh) -> bool:
     return bool(np.abs(x[faces[:, 3:]] - mid).max(initial=0.0) <= STRAIGHT_TOL * mesh.mean_edge_length())
 
 
+def is_straight(mesh: QuadraticTetMesh) -> bool:
+    """Whether every element of ``mesh`` is straight: each edge node at its edge's midpoint
+    (within :data:`STRAIGHT_TOL`), so that the parametrization of the mesh is the identity."""
+    x, tets = mesh.vertices, mesh.tets
+    mid = 0.5 * (x[tets[:, p2.EDGES[:, 0]]] + x[tets[:, p2.EDGES[:, 1]]])
+    return bool(np.abs(x[tets[:, 4:]] - mid).max(initial=0.0) <= STRAIGHT_TOL * mesh.mean_edge_length())
+
+
 class QuadraticCutter:
     """Cuts a :class:`~wcut.quadratic.QuadraticTetMesh`, one event at a time (thesis 6.1.2).
 
@@ -100,12 +108,24 @@ class QuadraticCutter:
 
     The corner cutter runs with ``curved_boundary`` unless every boundary face is flat
     (:func:`has_flat_boundary`), where the linear method applies unchanged.
+
+    ``improve``: the corner cutter's local mesh improvement (:class:`~wcut.cut.Cutter`); by
+    default on where every element is straight (:func:`is_straight`: its nodes are placed
+    exactly, and the volume kept), off on a curved mesh, which refuses it: the improvement's
+    elements lie across those of before, and nodes placed on them by a curved
+    parametrization would change the volume (by 1e-5 on the curved organ).
     """
 
     def __init__(self, mesh: QuadraticTetMesh, method: str = "paulus", epsilon: float = 0.1, *,
-                 mean_edge_length: float | None = None, positions=None, velocities=None):
+                 mean_edge_length: float | None = None, positions=None, velocities=None,
+                 improve: bool | None = None):
         if method not in METHODS:
             raise CutError(f"unknown cut method {method!r} (expected one of {', '.join(METHODS)})")
+        straight = is_straight(mesh)
+        if improve and not straight:
+            raise CutError("improve needs straight quadratic elements: the improvement's elements lie across "
+                           "those of before, and the nodes of curved ones would change the volume; leave it "
+                           "out (None or False) for this mesh")
         self.mesh = mesh
         self.positions = mesh.vertices.copy() if positions is None else np.array(positions, dtype=np.float64)
         self.velocities = np.zeros_like(self.positions) if velocities is None else \
@@ -118,7 +138,8 @@ class QuadraticCutter:
         self.topology = TetTopology(linear, positions=self.positions[self.corner_nodes],
                                     velocities=self.velocities[self.corner_nodes])
         self.curved_boundary = not has_flat_boundary(mesh)
-        self.cutter = _CornerCutter(self, method=method, epsilon=epsilon, mean_edge_length=mean_edge_length)
+        self.cutter = _CornerCutter(self, method=method, epsilon=epsilon, mean_edge_length=mean_edge_length,
+                                    improve=straight if improve is None else bool(improve))
         self._corner_tets = linear.tets  # elements of :attr:`mesh` by corner-mesh vertex
         self._slot_nodes = mesh.tets  # nodes of the element in each topology slot (-1: none)
 
@@ -222,10 +243,7 @@ class _CornerCutter(Cutter):
     def __init__(self, owner: QuadraticCutter, **options):
         # the Python operators: the curved cutter is tested with their choice between equally
         # good triangulations of a general flip
-        # no local improvement: moving a corner would have to keep the curved elements around
-        # it unfolded, which the improvement does not check
-        super().__init__(owner.topology, curved_boundary=owner.curved_boundary, compiled=False, improve=False,
-                         **options)
+        super().__init__(owner.topology, curved_boundary=owner.curved_boundary, compiled=False, **options)
         self._owner = owner
 
     def _move_keeps_quality(self, v: int, other: int, s: float) -> bool:
