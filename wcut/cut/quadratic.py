@@ -83,17 +83,22 @@ def has_flat_boundary(mesh: QuadraticTetMesh) -> bool:
     """Whether every boundary face of ``mesh`` is a flat triangle: each edge node on the
     boundary is at its edge's midpoint (within :data:`STRAIGHT_TOL`)."""
     faces = mesh.boundary().triangles
-    x = mesh.vertices
-    mid = 0.5 * (x[faces[:, [0, 1, 2]]] + x[faces[:, [1, 2, 0]]])
-    return bool(np.abs(x[faces[:, 3:]] - mid).max(initial=0.0) <= STRAIGHT_TOL * mesh.mean_edge_length())
+    return _at_midpoints(mesh, faces[:, [0, 1, 2]], faces[:, [1, 2, 0]], faces[:, 3:])
 
 
 def is_straight(mesh: QuadraticTetMesh) -> bool:
     """Whether every element of ``mesh`` is straight: each edge node at its edge's midpoint
     (within :data:`STRAIGHT_TOL`), so that the parametrization of the mesh is the identity."""
-    x, tets = mesh.vertices, mesh.tets
-    mid = 0.5 * (x[tets[:, p2.EDGES[:, 0]]] + x[tets[:, p2.EDGES[:, 1]]])
-    return bool(np.abs(x[tets[:, 4:]] - mid).max(initial=0.0) <= STRAIGHT_TOL * mesh.mean_edge_length())
+    tets = mesh.tets
+    return _at_midpoints(mesh, tets[:, p2.EDGES[:, 0]], tets[:, p2.EDGES[:, 1]], tets[:, 4:])
+
+
+def _at_midpoints(mesh: QuadraticTetMesh, ends_a: np.ndarray, ends_b: np.ndarray, nodes: np.ndarray) -> bool:
+    """Whether each node ``nodes[...]`` lies at the midpoint of its edge (``ends_a[...]``,
+    ``ends_b[...]``) within :data:`STRAIGHT_TOL` of the mean edge length."""
+    x = mesh.vertices
+    gap = np.abs(x[nodes] - 0.5 * (x[ends_a] + x[ends_b])).max(initial=0.0)
+    return bool(gap <= STRAIGHT_TOL * mesh.mean_edge_length())
 
 
 class QuadraticCutter:

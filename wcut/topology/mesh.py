@@ -538,10 +538,10 @@ class TetTopology:
         :meth:`quality`.
 
         ``link_faces=False`` (a write-back of the compiled operators, or a flip of the mesh
-        improvement: their own queries use the vertex stars) leaves the face adjacency (``face_tets``, ``slot_face_keys``) to be
-        brought up to date when it is next read, exactly as linking now would have left it;
-        the vertex stars are up to date at once. Only while no face is unsewn (linking can
-        then not change ``unsewn``).
+        improvement: their own queries use the vertex stars) leaves the face adjacency
+        (``face_tets``, ``slot_face_keys``) to be brought up to date when it is next read,
+        exactly as linking now would have left it; the vertex stars are up to date at once.
+        Only while no face is unsewn (linking can then not change ``unsewn``).
         """
         journal = self._journal
         parents = parents or [removed[0]] * len(added)
