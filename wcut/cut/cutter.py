@@ -45,6 +45,7 @@ from ..mesh import TET_FACES, dihedral_angles, tet_volumes
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
                         flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, tet_qualities,
                         unsew_face)
+from ..topology.improve import MIN_VOLUME_FRACTION as IMPROVE_MIN_VOLUME_FRACTION
 from ..topology.improve import TARGET_ANGLE as IMPROVE_TARGET
 from ..topology.improve import has_poor
 from ..topology.improve import improve as improve_mesh
@@ -214,10 +215,12 @@ class Cutter:
             are equally large the copy that keeps its number may differ.
         improve: after each cut, improve the elements it made and those around them whose
             smallest dihedral angle is below 6 degrees, or below the input mesh's worst where
-            that is smaller (:mod:`wcut.topology.improve`): the vertices inside the wound slide
-            on it with their copies, the others move, edges and faces flip; the cut surface,
-            the boundary, the lips' match and the volume stay as they are, and the elements a
-            progressive blade is still in are left for its next increment. On by default; it
+            that is smaller, or whose rest volume is below 2e-3 of the input's median element,
+            or below its smallest where that is smaller (:mod:`wcut.topology.improve`): the
+            vertices inside the wound slide on it with their copies, the others move, edges and
+            faces flip; the cut surface, the boundary, the lips' match and the volume stay as
+            they are, and the elements a progressive blade is still in are left for its next
+            increment. On by default; it
             costs some 6 ms per increment of ``organ_cut``'s blade and 30 ms per plane cut of
             the organ at epsilon 0.1 (``tools/cut_separation.py``). The corners of quadratic
             elements are improved only where every element is straight
@@ -252,6 +255,9 @@ class Cutter:
         #: the smallest dihedral angle (degrees) the improvement works towards: its target, or
         #: the input mesh's worst where that is smaller (its own slivers are not the cut's)
         self.improve_target = min(IMPROVE_TARGET, _worst_angle(topology)) if self.improve else IMPROVE_TARGET
+        #: the smallest rest volume (m^3) the improvement works towards: a fraction of the input
+        #: mesh's median element, or its smallest element where that is smaller
+        self.improve_min_volume = _volume_floor(topology) if self.improve else 0.0
         self._longest = self._longest_edge()  # (m, rest; grown by the elements cuts make)
         #: vertices this cutter inserted by 1-4 splits, and their copies when a cut duplicated
         #: them: one on the surface serves again as the split vertex of its element's pieces when
@@ -1109,7 +1115,7 @@ class Cutter:
         work = set(changed)
         for v in vertices:
             work |= topo.vertex_tets[v]
-        if not has_poor(topo, work, self.improve_target):
+        if not has_poor(topo, work, self.improve_target, self.improve_min_volume):
             return  # (most of a clean mesh's cut events: nothing to set up)
         x = self.coordinates()[candidates]
         on = candidates[surface.distance(x, self.tolerance) <= self.tolerance].tolist()
@@ -1138,7 +1144,8 @@ class Cutter:
             return bool(np.isnan(t).all())
 
         # the elements the blade is still in are cut by a later increment as they are now
-        result = improve_mesh(topo, work, frozen, target=self.improve_target, twins=twins,
+        result = improve_mesh(topo, work, frozen, target=self.improve_target, min_volume=self.improve_min_volume,
+                              twins=twins,
                               pinned=self._waiting_vertices, may_move=off_the_cut, may_make=apart)
         stats.improved_edge_flips += result.edge_flips
         stats.improved_face_flips += result.face_flips
@@ -1159,6 +1166,16 @@ class Cutter:
         topo.replace_tets(sorted(doomed), [])
         stats.deleted_elements = len(doomed)
         topo.drop_unused_vertices()
+
+
+def _volume_floor(topology: TetTopology) -> float:
+    """``MIN_VOLUME_FRACTION`` of the median rest volume of the live elements, or their
+    smallest volume where that is smaller (m^3)."""
+    tets = topology.tets[topology.live_tets()]
+    if not len(tets):
+        return 0.0
+    volumes = tet_volumes(topology.rest_positions, tets)
+    return float(min(IMPROVE_MIN_VOLUME_FRACTION * np.median(volumes), volumes.min()))
 
 
 def _worst_angle(topology: TetTopology) -> float:

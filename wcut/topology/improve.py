@@ -25,7 +25,11 @@ improves the elements a change made, and their neighbours, in the rest configura
 
 The measure is the smallest sine of an element's six dihedral angles (:func:`min_sine`):
 small for slivers, needles and caps alike (a dihedral angle near 0 or near 180 degrees both
-make the element stiff). Each move is made only if it raises the worst measure of the
+make the element stiff). With a smallest volume, an element below it counts as a sliver whose
+sine is the target's times its share of that volume: a plane passing a tenth of an edge from
+a vertex cuts off well-shaped elements of 1e-5 to 1e-3 of the median volume (every smallest
+element of ten plane cuts of four meshes made by others), and smoothing that vertex away
+from the plane grows them. Each move is made only if it raises the worst measure of the
 elements it replaces or reshapes, so the worst element never gets worse; every move keeps
 the rest volume, the outer boundary and the cut surface: a flip of a boundary edge only where
 its boundary faces are coplanar, no flip removes an edge or a face whose vertices are all
@@ -46,6 +50,10 @@ from .operators import check_vertex_move, flip23, move_vertex, remove_edge
 
 #: Elements whose smallest dihedral angle is below this (degrees) are improved.
 TARGET_ANGLE = 6.0
+
+#: Elements whose rest volume is below this fraction of the mesh's median are improved (by
+#: :class:`wcut.cut.Cutter`, which passes the volume).
+MIN_VOLUME_FRACTION = 2.0e-3
 
 #: Passes over the elements still below the target (each pass may create new poor neighbours).
 PASSES = 3
@@ -80,10 +88,12 @@ class ImproveStats:
     worst_after: float = math.nan
 
 
-def min_sine(p0, p1, p2, p3) -> float:
+def min_sine(p0, p1, p2, p3, volume_scale: float | None = None) -> float:
     """The smallest sine of the six dihedral angles of a tetrahedron (corners as float
     triples, m): ``sin(theta_e) = 3 V l_e / (2 A_f A_g)`` at edge e between faces f and g.
-    Signed as the volume (negative for an inverted element); 0.943 for the regular one."""
+    Signed as the volume (negative for an inverted element); 0.943 for the regular one. With
+    ``volume_scale`` (1/m^3), at most ``volume_scale * 6 V``: the measure of the improvement
+    (:func:`improve`)."""
     e01, e02, e03 = _sub(p1, p0), _sub(p2, p0), _sub(p3, p0)
     e12, e13, e23 = _sub(p2, p1), _sub(p3, p1), _sub(p3, p2)
     # twice the areas of the faces opposite corners 0..3
@@ -94,29 +104,46 @@ def min_sine(p0, p1, p2, p3) -> float:
     # edge (i, j) joins the faces opposite its two other corners; with 6V and doubled areas F,
     # sin = 3 V l / (2 A A') = 6V l / (F F')
     pairs = ((e01, f2, f3), (e02, f1, f3), (e03, f1, f2), (e12, f0, f3), (e13, f0, f2), (e23, f0, f1))
-    return min(six_v * _norm(e) / (fa * fb) for e, fa, fb in pairs)
+    least = min(six_v * _norm(e) / (fa * fb) for e, fa, fb in pairs)
+    return least if volume_scale is None else min(least, volume_scale * six_v)
 
 
-def min_sines(corners: np.ndarray) -> np.ndarray:
+def min_sines(corners: np.ndarray, volume_scale: float | None = None) -> np.ndarray:
     """:func:`min_sine` of many tetrahedra at once: ``corners`` (..., 4, 3) (m). The same
     arithmetic in the same order, so each value equals :func:`min_sine`'s to the last bit."""
+    return _sines(corners, volume_scale)[0]
+
+
+def _sines(corners: np.ndarray, volume_scale: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`min_sines` with and without ``volume_scale``: (measure, sine)."""
     c = np.asarray(corners, dtype=np.float64)
     edges = c[..., _EDGE_HEADS, :] - c[..., _EDGE_TAILS, :]  # e01 e02 e03 e12 e13 e23
     doubled = _norms(_crosses(edges[..., _FACE_U, :], edges[..., _FACE_V, :]))  # F0..F3
     six_v = _dots(edges[..., 0, :], _crosses(edges[..., 1, :], edges[..., 2, :]))
     with np.errstate(divide="ignore", invalid="ignore"):
         sines = six_v[..., None] * _norms(edges) / (doubled[..., _EDGE_FACE_A] * doubled[..., _EDGE_FACE_B])
-    least = sines.min(axis=-1)
-    return np.where(doubled.prod(axis=-1) == 0.0, 0.0, least)
+    degenerate = doubled.prod(axis=-1) == 0.0
+    least = np.where(degenerate, 0.0, sines.min(axis=-1))
+    if volume_scale is None:
+        return least, least
+    return np.where(degenerate, 0.0, np.minimum(least, volume_scale * six_v)), least
+
+
+def _volume_scale(target: float, min_volume: float) -> float | None:
+    """The ``volume_scale`` (1/m^3) of :func:`min_sine` that counts an element of volume V
+    below ``min_volume`` (m^3) as a sliver of sine ``sin(target) V / min_volume`` (``target``
+    in degrees); None for ``min_volume`` 0 (the sine alone)."""
+    return math.sin(math.radians(target)) / (6.0 * min_volume) if min_volume > 0.0 else None
 
 
 def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TARGET_ANGLE,
-            twins: dict[int, int] | None = None, pinned=frozenset(), may_move=None, may_make=None) -> ImproveStats:
+            min_volume: float = 0.0, twins: dict[int, int] | None = None, pinned=frozenset(), may_move=None,
+            may_make=None) -> ImproveStats:
     """Improve live elements ``elements`` (slots) whose smallest dihedral angle is below
-    ``target`` (degrees), and what the moves make. ``frozen``: vertices that must not move
-    alone (the cut surface). ``twins``: the copy on the other lip of each vertex inside the
-    wound (both ways; a vertex the cut did not duplicate, at the wound's front, maps to
-    itself), for sliding. ``pinned``: vertices that never move, not even sliding, and whose
+    ``target`` (degrees) or whose rest volume is below ``min_volume`` (m^3), and what the
+    moves make. ``frozen``: vertices that must not move alone (the cut surface). ``twins``: the
+    copy on the other lip of each vertex inside the wound (both ways; a vertex the cut did not
+    duplicate, at the wound's front, maps to itself), for sliding. ``pinned``: vertices that never move, not even sliding, and whose
     elements no flip removes (a progressive cut's elements still under the blade).
     ``may_move(vertices, parents, weights)``: per move of ``vertices[i]`` to the combination
     ``parents[i]``, ``weights[i]``, whether smoothing may make it (a boolean array; the cutter
@@ -126,13 +153,13 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     stats = ImproveStats()
     fixed = frozen | set(pinned) if pinned else frozen
     goal = math.sin(math.radians(target))
-    sine = _Sines(topo)
+    sine = _Sines(topo, goal, _volume_scale(target, min_volume))
     accept = _better(sine, may_make)
     work = [t for t in elements if topo.alive[t]]
     if not work:
         return stats
     values = sine.prime(work)
-    stats.worst_before = _degrees(float(values.min()))
+    stats.worst_before = _worst_degrees(topo, work)
     # only a move changes an element's sine, and a move reports every element it makes or
     # reshapes: the poor elements are those of the input and of the moves
     poor = {t for t, q in zip(work, values.tolist()) if q < goal}
@@ -153,51 +180,68 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
                 changed = True
         if not changed:
             break
-    live = {t for t in work if topo.alive[t]}
-    stats.worst_after = _degrees(min(sine(t) for t in live)) if live else math.nan  # (all primed)
+    live = [t for t in set(work) if topo.alive[t]]
+    stats.worst_after = _worst_degrees(topo, live) if live else math.nan
     return stats
 
 
-def has_poor(topo: TetTopology, elements, target: float = TARGET_ANGLE) -> bool:
+def has_poor(topo: TetTopology, elements, target: float = TARGET_ANGLE, min_volume: float = 0.0) -> bool:
     """Whether one of live elements ``elements`` (slots) has a dihedral angle below ``target``
-    (degrees): whether :func:`improve` has anything to do (a caller may skip setting it up)."""
+    (degrees) or a volume below ``min_volume`` (m^3): whether :func:`improve` has anything to do
+    (a caller may skip setting it up)."""
     slots = np.fromiter(elements, np.int64)
-    return len(slots) > 0 and float(min_sines(topo.rest_positions[topo.tets[slots]]).min()) < \
+    corners = topo.rest_positions[topo.tets[slots]]
+    return len(slots) > 0 and float(min_sines(corners, _volume_scale(target, min_volume)).min()) < \
         math.sin(math.radians(target))
 
 
 class _Sines:
-    """:func:`min_sine` of live element slots (rest configuration), remembered. The caller
-    primes what each move makes or reshapes (moves report every such element), so a
-    remembered value is always the element's current one."""
+    """The measure of live element slots (:func:`min_sine` with ``volume_scale``, rest
+    configuration), remembered. The caller primes what each move makes or reshapes (moves
+    report every such element), so a remembered value is always the element's current one.
 
-    def __init__(self, topo: TetTopology):
+    A move must raise the worst measure of what it replaces and keep the worst sine above
+    ``goal`` or above what it was (:meth:`floor`): growing a small element never makes a sliver.
+    """
+
+    def __init__(self, topo: TetTopology, goal: float, volume_scale: float | None = None):
         self.topo = topo
+        self.goal = goal
+        self.volume_scale = volume_scale
         self.known: dict[int, float] = {}
 
     def __call__(self, t: int) -> float:
         q = self.known.get(t)
         if q is None:
             rest = self.topo.rest_tuples
-            q = self.known[t] = min_sine(*[rest[v] for v in self.topo.tets[t].tolist()])
+            q = self.known[t] = min_sine(*[rest[v] for v in self.topo.tets[t].tolist()], self.volume_scale)
         return q
 
     def prime(self, slots) -> np.ndarray:
         """The sines of live element slots ``slots``, computed at once and remembered."""
-        values = min_sines(self.topo.rest_positions[self.topo.tets[slots]])
+        values = min_sines(self.topo.rest_positions[self.topo.tets[slots]], self.volume_scale)
         self.known.update(zip(slots, values.tolist()))
         return values
 
-    def of(self, tets) -> float:
-        """The worst sine of elements ``tets`` (vertex lists) that are not in the mesh yet."""
-        return float(min_sines(self.topo.rest_positions[np.asarray(tets)]).min())
+    def of(self, tets) -> tuple[float, float]:
+        """The worst measure and the worst sine of elements ``tets`` (vertex lists)."""
+        measure, sine = _sines(self.topo.rest_positions[np.asarray(tets)], self.volume_scale)
+        return float(measure.min()), float(sine.min())
+
+    def floor(self, tets) -> float:
+        """The worst sine a move that replaces or reshapes elements ``tets`` (vertex lists) may
+        leave: theirs, or ``goal`` where theirs is above."""
+        return min(self.goal, self.of(tets)[1]) if self.volume_scale is not None else -math.inf
 
 
 def _better(sine: _Sines, may_make=None):
-    """An ``accept`` for the flips: the new elements' worst sine exceeds the removed ones', and
-    ``may_make`` (if given) allows them."""
-    return lambda removed, added: sine.of(added) > min(sine(t) for t in removed) and \
-        (may_make is None or may_make(added))
+    """An ``accept`` for the flips: the new elements' worst measure exceeds the removed ones',
+    their worst sine stays above :meth:`_Sines.floor`, and ``may_make`` (if given) allows them."""
+    def accept(removed, added) -> bool:
+        measure, least = sine.of(added)
+        return measure > min(sine(t) for t in removed) and least >= sine.floor(sine.topo.tets[removed]) and \
+            (may_make is None or may_make(added))
+    return accept
 
 
 def _flip_edges(topo: TetTopology, t: int, frozen: set[int], accept, stats: ImproveStats) -> list[int]:
@@ -243,14 +287,14 @@ def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: Im
         if v in frozen:
             continue
         star = sorted(topo.vertex_tets[v])
-        now = min(sine(s) for s in star)
+        now, floor = min(sine(s) for s in star), sine.floor(topo.tets[star])
         tried = [_merge([v] + parents, [1.0 - step] + [step * x for x in weights])
                  for parents, weights in _candidates(topo, v, star, sine) for step in STEPS]
         if not tried:
             continue
         targets = np.array([np.asarray(w) @ rest[full] for full, w in tried])
-        for q, (full, w) in zip(_star_sines(topo, star, (v,), targets).tolist(), tried):
-            if q > now:
+        for q, least, (full, w) in zip(*_star_sines(sine, star, (v,), targets), tried):
+            if q > now and least >= floor:
                 moves.append((q - now, v, full, w))
     moves.sort(key=lambda m: -m[0])
     if may_move is not None and moves:  # asked at once: one query of the cut surface
@@ -283,7 +327,7 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
         if not lip or not _boundary_neighbours(topo, w).issuperset(mirrored):
             continue  # the lips' fans around v and w do not match
         star = sorted(topo.vertex_tets[v] | topo.vertex_tets[w])
-        now = min(sine(s) for s in star)
+        now, floor = min(sine(s) for s in star), sine.floor(topo.tets[star])
         nearest = min(range(len(lip)), key=lambda i: _norm(_sub(rest[lip[i]], rest[v])))
         targets = [[1.0 - step] + [step / len(lip)] * len(lip) for step in STEPS]
         for a in AWAY:  # from the nearest neighbour on the lip, along their edge
@@ -291,8 +335,8 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
             weights[1 + nearest] = -a
             targets.append(weights)
         points = np.array(targets) @ topo.rest_positions[[v] + lip]
-        for q, weights in zip(_star_sines(topo, star, (v, w), points).tolist(), targets):
-            if q > now:
+        for q, least, weights in zip(*_star_sines(sine, star, (v, w), points), targets):
+            if q > now and least >= floor:
                 moves.append((q - now, v, w, lip, mirrored, weights))
     for _, v, w, lip, mirrored, weights in sorted(moves, key=lambda m: -m[0]):
         try:  # both checked before either moves (w's star does not hold v: the checks stand)
@@ -306,14 +350,15 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
     return []
 
 
-def _star_sines(topo: TetTopology, star: list[int], moved, targets: np.ndarray) -> np.ndarray:
-    """The worst sine of elements ``star`` with vertices ``moved`` at each of ``targets`` (K, 3)
-    (rest configuration, m): (K,)."""
-    tets = topo.tets[star]
-    corners = np.repeat(topo.rest_positions[tets][None], len(targets), axis=0)  # (K, S, 4, 3)
+def _star_sines(sine: _Sines, star: list[int], moved, targets: np.ndarray) -> tuple[list, list]:
+    """The worst measure and the worst sine of elements ``star`` with vertices ``moved`` at
+    each of ``targets`` (K, 3) (rest configuration, m): two lists of K."""
+    tets = sine.topo.tets[star]
+    corners = np.repeat(sine.topo.rest_positions[tets][None], len(targets), axis=0)  # (K, S, 4, 3)
     at = np.isin(tets, moved)
     corners[:, at] = targets[:, None]
-    return min_sines(corners).min(axis=1)
+    measure, least = _sines(corners, sine.volume_scale)
+    return measure.min(axis=1).tolist(), least.min(axis=1).tolist()
 
 
 def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
@@ -352,7 +397,9 @@ def _merge(parents: list[int], weights: list[float]) -> tuple[list[int], list[fl
     return list(merged), [w / total for w in merged.values()]
 
 
-def _degrees(sine: float) -> float:
+def _worst_degrees(topo: TetTopology, slots: list[int]) -> float:
+    """The smallest dihedral angle (degrees) of live elements ``slots`` (rest configuration)."""
+    sine = float(min_sines(topo.rest_positions[topo.tets[slots]]).min())
     return math.degrees(math.asin(max(-1.0, min(1.0, sine))))
 
 
