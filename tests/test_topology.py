@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from wcut.errors import WcutError
 from wcut.mesh import TET_FACES, TetMesh, beam
 from wcut.topology import (TetTopology, TopologyError, bisect_edge, check_topology, connected_components,
-                           duplicate_vertex, face_key, flip23, move_vertex, remove_edge, sew_unopened, split_face,
+                           contract_edge, duplicate_vertex, face_key, flip23, move_vertex, remove_edge, sew_unopened, split_face,
                            split_tet, tet_qualities, tet_quality, unsew_face, vertex_fans)
 from wcut.topology.mesh import POSITION, REST, VELOCITY, signed_volume
 
@@ -436,6 +436,10 @@ REFUSALS = {
     "remove_edge with one element": (single_tet, remove_edge, (0, 1), "only 2 vertices"),
     "remove_edge missing edge": (two_tets, remove_edge, (3, 4), "not in the mesh"),
     "remove_edge bent boundary": (lambda: pyramid(0.3), remove_edge, (0, 1), "volume"),
+    "contract_edge missing edge": (two_tets, contract_edge, (3, 4), "no such edge"),
+    "contract_edge off the boundary": (MESHES["beam"], contract_edge, (_grid_vertex(1, 1, 0), _grid_vertex(1, 1, 1)),
+                                       "off its boundary"),
+    "contract_edge flattening": (MESHES["beam"], contract_edge, (13, 1), "flat"),
     "unsew boundary face": (two_tets, unsew_face, ((0, 1, 3),), "not an interior face"),
 }
 
@@ -577,6 +581,18 @@ def _change_move(topo):
     move_vertex(topo, v, [v, _grid_vertex(1, 2, 1), _grid_vertex(1, 1, 2)], [0.8, 0.1, 0.1])
 
 
+def _change_contract(topo):
+    """A 1-4 split and a face split, then the split vertex merged into a neighbour: the face
+    split's vertex, the last, takes its number."""
+    p, _ = split_tet(topo, 5, [0.1, 0.2, 0.3, 0.4])
+    q, _ = split_face(topo, interior_faces(topo)[7], [0.4, 0.3, 0.3])
+    first_applied(topo, [(p, u) for u in range(topo.vertex_count) if topo.edge_tets(p, u)], contract_edge)
+    expected = topo.vertex_data[q].copy()
+    assert topo.drop_orphans() == ({p}, {q: p})
+    np.testing.assert_array_equal(topo.vertex_data[p], expected)
+    check_topology(topo)
+
+
 def _change_sequence(topo):
     """Splits, then flips and moves on the new elements, then a cut."""
     p, new = split_tet(topo, 0, [0.25, 0.25, 0.25, 0.25])
@@ -593,7 +609,7 @@ def _change_sequence(topo):
 CHANGES = {
     "split_tet": _change_split_tet, "split_face": _change_split_faces, "flip23": _change_flip23,
     "remove_edge": _change_remove_edge, "bisect_edge": _change_bisect, "move_vertex": _change_move,
-    "sequence": _change_sequence,
+    "contract_edge": _change_contract, "sequence": _change_sequence,
 }
 
 
@@ -695,7 +711,14 @@ def _draw(data, items):
 def _random_operation(topo: TetTopology, data):
     """A random operator with random arguments on the current mesh: (name, args)."""
     kind = data.draw(st.sampled_from(["split_tet", "split_face", "flip23", "bisect_edge", "remove_edge",
-                                      "move_vertex", "unsew_face", "duplicate_vertex", "sew_unopened", "cut"]))
+                                      "move_vertex", "unsew_face", "duplicate_vertex", "sew_unopened", "cut",
+                                      "contract_edge"]))
+    made = [v for v in range(topo.first_new_vertex, topo.vertex_count) if topo.vertex_tets[v]]
+    if kind == "contract_edge" and made:  # a vertex made in this change merged into a neighbour
+        v = _draw(data, made)
+        return contract_edge, (v, _draw(data, sorted({w for t in topo.vertex_tets[v] for w in topo.tet(t)} - {v})))
+    if kind == "contract_edge":
+        kind = "split_tet"
     if kind == "cut":  # a full or partial cut along a grid plane of the beam
         axis = data.draw(st.integers(0, 2))
         limit = data.draw(st.sampled_from([np.inf, 0.5 * BEAM_SIZE[(axis + 1) % 3]]))
@@ -732,6 +755,13 @@ def test_random_operator_sequences_keep_the_mesh_valid(data):
     for _ in range(data.draw(st.integers(5, 15))):
         operator, args = _random_operation(topo, data)
         attempt(topo, operator, *args)  # checks the mesh when applied, its integrity when refused
+    orphans = {v for v in range(topo.first_new_vertex, topo.vertex_count) if not topo.vertex_tets[v]}
+    count = topo.vertex_count
+    dropped, moved = topo.drop_orphans()  # the vertices contractions left without elements
+    assert dropped == orphans and topo.vertex_count == count - len(orphans)
+    assert set(moved) <= set(range(topo.vertex_count, count)) and set(moved.values()) <= orphans
+    check_topology(topo)
+    assert_affine(topo)
     # parents are checked per operator by test_change_record_expresses_new_mesh_in_old
     check_change(topo.end_change(), before, topo, parents=False)
 

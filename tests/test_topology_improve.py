@@ -190,26 +190,49 @@ def test_improvement_spares_the_elements_under_a_progressive_blade(monkeypatch):
     assert connected_components(topo.to_mesh()).max() == 1
 
 
+def _lips(mesh, plane, tol) -> list[set]:
+    """The boundary faces on ``plane`` of the elements on each side of it, as sets of triangles
+    (sorted corner triples, rest positions rounded to 1e-12 m)."""
+    from wcut.cut.separation import element_sides
+    from wcut.mesh import TET_FACES
+
+    faces = np.sort(mesh.tets[:, TET_FACES].reshape(-1, 3), axis=1)
+    _, first, counts = np.unique(faces, axis=0, return_index=True, return_counts=True)
+    boundary = first[counts == 1]
+    d = plane.signed_distance(mesh.vertices)
+    boundary = boundary[(np.abs(d[faces[boundary]]) <= tol).all(axis=1)]
+    sides = element_sides(d[mesh.tets], tol)[boundary // 4]
+    x = np.round(mesh.vertices, 12)
+    return [{tuple(sorted(map(tuple, x[f]))) for f in faces[boundary[sides == side]]} for side in (-1, 1)]
+
+
 @pytest.mark.parametrize("point, normal", [
     ([0.013883, 0.011776, 0.003965], [-0.8967, -0.44166, 0.02928]),
     ([0.020358, -0.006585, -0.009953], [0.79323, 0.31483, 0.52121])])
 def test_the_small_elements_a_cut_leaves_next_to_a_vertex_are_grown(point, normal):
-    """Plane cuts of the organ passing a tenth of an edge from vertices inside it cut off
-    well-shaped elements of some 2e-4 of the median volume. The improvement moves those
-    vertices away from the plane until every element is above 1e-3 of it, without a worse
-    worst angle than the cut alone leaves, and the cut still separates."""
-    from wcut.cut.separation import plane_separation
+    """Plane cuts of the organ passing a tenth of an edge from vertices cut off well-shaped
+    elements of some 2e-4 of the median volume. The improvement moves those vertices away
+    from the plane and contracts edges of the wound (both copies) until every element is
+    above 1e-3 of it, without a worse worst angle than the cut alone leaves; the lips still
+    meet face to face, each side keeps its volume and the cut separates."""
+    from wcut.cut.separation import element_sides, plane_separation
 
     median = float(np.median(ORGAN.volumes()))
     plane = Plane(point, normal)
-    smallest, worst = {}, {}
+    smallest, worst, sides = {}, {}, {}
     for improved in (False, True):
         topo = TetTopology(ORGAN)
         cutter = Cutter(topo, epsilon=0.1, improve=improved)
-        cutter.cut(plane)
+        stats = cutter.cut(plane).stats
         check_topology(topo, ORGAN.volumes().sum(), volume_tolerance=1e-12)
         mesh = topo.to_mesh()
         assert plane_separation(mesh.vertices, mesh.tets, plane, cutter.tolerance).separated
         smallest[improved], worst[improved] = float(mesh.volumes().min()) / median, _worst_angle(topo)
+        side = element_sides(plane.signed_distance(mesh.vertices)[mesh.tets], cutter.tolerance)
+        sides[improved] = [mesh.volumes()[side == s].sum() for s in (-1, 1)]
+        below, above = _lips(mesh, plane, cutter.tolerance)
+        assert below == above and len(below) > 100
     assert smallest[False] < 1e-3 < smallest[True]
     assert worst[True] >= worst[False]
+    assert stats.contracted_edges > 0 and stats.contracted_edges % 2 == 0
+    np.testing.assert_allclose(sides[True], sides[False], rtol=1e-12)

@@ -129,6 +129,8 @@ class CutStats:
     #: vertices slid within the wound, counting both copies (:mod:`wcut.topology.improve`)
     slid_vertices: int = 0
     smoothed_vertices: int = 0
+    #: edges contracted by the improvement, counting both copies of an edge inside the wound
+    contracted_edges: int = 0
     refused: list[str] = field(default_factory=list)
 
     def add(self, other: "CutStats") -> None:
@@ -1145,12 +1147,18 @@ class Cutter:
 
         # the elements the blade is still in are cut by a later increment as they are now
         result = improve_mesh(topo, work, frozen, target=self.improve_target, min_volume=self.improve_min_volume,
-                              twins=twins,
-                              pinned=self._waiting_vertices, may_move=off_the_cut, may_make=apart)
+                              twins=twins, pinned=self._waiting_vertices, may_move=off_the_cut, may_make=apart,
+                              contract=True)
+        if result.contracted:  # the vertices merged into others go; the last ones take their numbers
+            dropped, moved = topo.drop_orphans()
+            for name in ("split_vertices", "wound_vertices", "_waiting_vertices"):
+                kept = getattr(self, name) - dropped
+                setattr(self, name, {moved.get(v, v) for v in kept})
         stats.improved_edge_flips += result.edge_flips
         stats.improved_face_flips += result.face_flips
         stats.smoothed_vertices += result.smoothed
         stats.slid_vertices += 2 * result.slid
+        stats.contracted_edges += result.contracted
 
     # ---------------------------------------------------------------- delete
     def _delete(self, surface: CutSurface, slots: np.ndarray, stats: CutStats) -> None:

@@ -780,10 +780,81 @@ class TetTopology:
                 else self._journal.vertex_renumber[kept]
         return dropped
 
+    def drop_orphans(self) -> tuple[set[int], dict[int, int]]:
+        """Remove the vertices made since :meth:`begin_change` that no element uses any more
+        (those an edge contraction merged into a neighbour), each replaced by the last vertex:
+        every other vertex keeps its number but those moved. O(vertices dropped and the stars
+        of those moved); the face adjacency is linked anew when next read, unless a face is
+        unsewn (then it is renumbered at once). Returns the numbers dropped and, for each
+        vertex moved, {number before: number now}."""
+        journal = self._journal
+        if journal is None or journal.vertex_renumber is not None:
+            raise TopologyError("drop_orphans() needs a change begun with begin_change(), no vertex dropped by "
+                                "drop_unused_vertices()")
+        dropped = {v for v in range(journal.base_vertex_count, self.vertex_count) if not self.vertex_tets[v]}
+        if not dropped:
+            return dropped, {}
+        if self.unsewn:
+            self.face_tets  # linked, to be renumbered
+        else:  # linked anew from the live elements when next read
+            self._face_tets, self._unlinked_faces, self._unlinked_count, self._faces_stale = {}, [], 0, True
+        expression, vertex_origin = journal.expression, journal.vertex_origin
+        number_of: dict[int, int] = {}  # number now -> number at the start of this call
+        moved: dict[int, int] = {}
+        for u in sorted(dropped, reverse=True):
+            last = self.vertex_count - 1
+            expression.pop(u, None)
+            vertex_origin.pop(u, None)
+            if u != last:
+                self._renumber(last, u)
+                if last in expression:
+                    expression[u] = expression.pop(last)
+                if last in vertex_origin:
+                    vertex_origin[u] = vertex_origin.pop(last)
+                original = number_of.pop(last, last)
+                number_of[u], moved[original] = original, u
+            self.vertex_count -= 1
+            self.vertex_tets.pop()
+            self.rest_tuples.pop()
+            self.rest_tuples32.pop()
+        return dropped, moved
+
+    def _renumber(self, old: int, new: int) -> None:
+        """Give vertex ``old`` (data, star, elements, faces) the number ``new``, whose vertex
+        has no element (:meth:`drop_orphans`)."""
+        self.vertex_data[new] = self.vertex_data[old]
+        self.rest_tuples[new], self.rest_tuples32[new] = self.rest_tuples[old], self.rest_tuples32[old]
+        star = self.vertex_tets[new] = self.vertex_tets[old]
+        self.vertex_tets[old] = set()
+        rows = sorted(star)
+        tets = self.tets[rows]
+        tets[tets == old] = new
+        self.tets[rows] = tets
+        if self._journal:
+            self._journal.rewired.update(rows)
+        if self._faces_stale:
+            return
+        renamed = lambda key: face_key(*[new if v == old else v for v in key])  # noqa: E731
+        for t in rows:  # (linked: no replacement is waiting to be linked)
+            for key in self._slot_face_keys[t]:
+                if old in key and key in self._face_tets:
+                    self._face_tets[renamed(key)] = self._face_tets.pop(key)
+                    if key in self.unsewn:
+                        self.unsewn.discard(key)
+                        self.unsewn.add(renamed(key))
+            self._slot_face_keys[t] = _face_keys(self.tets[t].tolist())
+
     # ------------------------------------------------------------- journal
     def begin_change(self) -> None:
         """Start recording a topological event (see :meth:`end_change`)."""
         self._journal = _Journal(self)
+
+    @property
+    def first_new_vertex(self) -> int:
+        """The number of the first vertex made since :meth:`begin_change` (the vertex count
+        when no change is recorded): from it on, a vertex that loses its elements may be
+        dropped (:meth:`drop_orphans`)."""
+        return self.vertex_count if self._journal is None else self._journal.base_vertex_count
 
     def changed_tets(self) -> list[int]:
         """Live element slots made, reshaped or rewired since :meth:`begin_change` (ascending):

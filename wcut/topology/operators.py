@@ -398,6 +398,55 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
                              link_faces=link_faces)
 
 
+def contract_edge(topo: TetTopology, u: int, w: int, *, accept=None, link_faces: bool = True) -> list[int]:
+    """Edge contraction: vertex u merges into its neighbour w. The elements on edge (u, w) go,
+    the other elements around u take w instead of u; u is left without elements (the caller
+    drops it: :meth:`TetTopology.drop_orphans`).
+
+    Refused unless every new element is well shaped and their volume is that of u's star (they
+    then tile it), w lies in the plane of every boundary face around u (u slides within a flat
+    boundary or along a straight crease, so the boundary stays: as :func:`move_vertex`), no
+    face on u is unsewn, and, with ``accept`` (mesh improvement), ``accept(removed, added)``
+    (slots, vertex lists). ``link_faces``: as in :meth:`TetTopology.replace_tets`. Returns the
+    new elements."""
+    return apply_contraction(topo, check_contraction(topo, u, w, accept=accept), link_faces=link_faces)
+
+
+def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None) -> tuple:
+    """Raise :class:`TopologyError` where :func:`contract_edge` would refuse; return what
+    :func:`apply_contraction` makes. Changes nothing (a caller contracting two edges together,
+    the two copies of an edge of a wound's lips, checks both first)."""
+    star = sorted(topo.vertex_tets[u])
+    tets = [topo.tet(t) for t in star]
+    kept = [tet for tet in tets if w not in tet]
+    if len(kept) == len(tets):
+        raise TopologyError(f"contraction of edge ({u}, {w}): no such edge")
+    if topo.unsewn and any(u in key for key in topo.unsewn):
+        raise TopologyError(f"contraction of edge ({u}, {w}): a face on {u} is unsewn")
+    added = [_substitute(tet, u, w) for tet in kept]
+    normals = _boundary_normals(topo, u)
+    if len(normals):
+        step = topo.vertex_data[w, REST] - topo.vertex_data[u, REST]
+        if np.abs(normals @ step).max() > 1e-12 * np.linalg.norm(step):
+            raise TopologyError(f"contraction of edge ({u}, {w}) would take boundary vertex {u} off its boundary")
+    if accept is not None and not (added and accept(star, added)):  # (asked first: it refuses most)
+        raise TopologyError(f"contraction of edge ({u}, {w}): not an improvement")
+    qualities: list[float] = []
+    _check(topo, added, f"contraction of edge ({u}, {w})", None, qualities)
+    rest = topo.rest_tuples
+    before = sum(topo.rest_volume(t) for t in star)
+    after = sum(signed_volume(*[rest[v] for v in tet]) for tet in added)
+    if not abs(after - before) <= 1e-12 * before:  # (the elements all on the edge: none left)
+        raise TopologyError(f"contraction of edge ({u}, {w}) would change the volume by {(after - before) / before:.1e}")
+    return star, added, qualities
+
+
+def apply_contraction(topo: TetTopology, checked: tuple, *, link_faces: bool = True) -> list[int]:
+    """Make the contraction :func:`check_contraction` checked; returns the new elements."""
+    star, added, qualities = checked
+    return topo.replace_tets(star, added, _containing(topo, star, added), qualities, link_faces=link_faces)
+
+
 def _polygon_qualities(corners: list, rest_a, rest_b) -> list:
     """``q[i][j][k]`` for i < j < k: the worse quality of the two tetrahedra (i, k, j, a) and
     (i, j, k, b) (corners i, j, k of the polygon), each to the last bit as :func:`tet_quality`
