@@ -220,10 +220,10 @@ class Cutter:
             that is smaller, or whose rest volume is below 2e-3 of the input's median element,
             or below its smallest where that is smaller (:mod:`wcut.topology.improve`): the
             vertices inside the wound slide on it with their copies, the others move, edges and
-            faces flip; the cut surface, the boundary, the lips' match and the volume stay as
-            they are, and the elements a progressive blade is still in are left for its next
-            increment. On by default; it
-            costs some 6 ms per increment of ``organ_cut``'s blade and 30 ms per plane cut of
+            faces flip, and edges whose end the cut made contract; the cut surface, the
+            boundary, the lips' match and the volume stay as they are, and the elements a
+            progressive blade is still in are left for its next increment. On by default; it
+            costs some 6 ms per increment of ``organ_cut``'s blade and 90 ms per plane cut of
             the organ at epsilon 0.1 (``tools/cut_separation.py``). The corners of quadratic
             elements are improved only where every element is straight
             (:class:`~wcut.cut.quadratic.QuadraticCutter`).
