@@ -236,3 +236,25 @@ def test_the_small_elements_a_cut_leaves_next_to_a_vertex_are_grown(point, norma
     assert worst[True] >= worst[False]
     assert stats.contracted_edges > 0 and stats.contracted_edges % 2 == 0
     np.testing.assert_allclose(sides[True], sides[False], rtol=1e-12)
+
+
+def test_a_progressive_cut_contracts_only_vertices_it_made():
+    """A blade drawn through the organ at epsilon 0 (Bielser's subdivision): an increment
+    duplicates vertices an earlier one made, and a copy made now may not merge with its
+    original into the neighbour's copies, which would leave the original without elements
+    (the change record keeps every vertex of before; a model with it cannot be factored). After
+    every increment each vertex belongs to an element and the mesh is valid."""
+    from wcut.cut import SweptBlade
+
+    sweep = SweptBlade(np.array([[[x, -0.01, 0.06], [x, -0.01, -0.01]] for x in np.linspace(-0.08, 0.09, 10)]))
+    topo = TetTopology(ORGAN)
+    cutter = Cutter(topo, method="bielser", epsilon=0.0)
+    contracted = 0
+    for k in range(1, 5):
+        result = cutter.cut(sweep.increment(k), progressive=True)
+        contracted += result.stats.contracted_edges
+        used = np.zeros(topo.vertex_count, dtype=bool)
+        used[topo.tets[topo.live_tets()].ravel()] = True
+        assert used.all() and result.change.vertex_count_after == topo.vertex_count
+        check_topology(topo, ORGAN.volumes().sum(), volume_tolerance=1e-12)
+    assert contracted > 0

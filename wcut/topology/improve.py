@@ -350,8 +350,8 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
             if u < first or u in pinned or (u in frozen and (u not in twins or not topo.boundary_faces_at(u))):
                 continue
             pairs = [(u, w)]
-            if twins.get(u, u) != u:  # and its copy on the other lip
-                if w not in twins:
+            if twins.get(u, u) != u:  # and its copy on the other lip, made by the change too
+                if w not in twins or twins[u] < first:
                     continue
                 pairs.append((twins[u], twins[w]))
             if pinned and any(v in pinned for u_, _ in pairs for s in topo.vertex_tets[u_] for v in topo.tets[s].tolist()):

@@ -399,9 +399,10 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
 
 
 def contract_edge(topo: TetTopology, u: int, w: int, *, accept=None, link_faces: bool = True) -> list[int]:
-    """Edge contraction: vertex u merges into its neighbour w. The elements on edge (u, w) go,
-    the other elements around u take w instead of u; u is left without elements (the caller
-    drops it: :meth:`TetTopology.drop_orphans`).
+    """Edge contraction: vertex u, made by the change being recorded
+    (:meth:`TetTopology.begin_change`), merges into its neighbour w. The elements on edge
+    (u, w) go, the other elements around u take w instead of u; u is left without elements (the
+    caller drops it: :meth:`TetTopology.drop_orphans`).
 
     Refused unless every new element is well shaped and their volume is that of u's star (they
     then tile it), w lies in the plane of every boundary face around u (u slides within a flat
@@ -421,6 +422,9 @@ def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None) -> tupl
     kept = [tet for tet in tets if w not in tet]
     if len(kept) == len(tets):
         raise TopologyError(f"contraction of edge ({u}, {w}): no such edge")
+    if u < topo.first_new_vertex:  # the change record keeps every vertex of before
+        raise TopologyError(f"contraction of edge ({u}, {w}): {u} was not made by the change being recorded "
+                            f"(begin_change)")
     if topo.unsewn and any(u in key for key in topo.unsewn):
         raise TopologyError(f"contraction of edge ({u}, {w}): a face on {u} is unsewn")
     added = [_substitute(tet, u, w) for tet in kept]
