@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from wcut.errors import WcutError
 from wcut.mesh import TET_FACES, TetMesh, beam
 from wcut.topology import (TetTopology, TopologyError, bisect_edge, check_topology, connected_components,
-                           contract_edge, duplicate_vertex, face_key, flip23, move_vertex, remove_edge, sew_unopened, split_face,
-                           split_tet, tet_qualities, tet_quality, unsew_face, vertex_fans)
+                           contract_edge, duplicate_vertex, face_key, flip23, move_vertex, remove_edge, sew_unopened,
+                           split_face, split_tet, tet_qualities, tet_quality, unsew_face, vertex_fans)
 from wcut.topology.mesh import POSITION, REST, VELOCITY, signed_volume
 
 from conftest import nonconvex_pair, pyramid, ring, single_tet, two_tets

@@ -153,8 +153,9 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     ``target`` (degrees) or whose rest volume is below ``min_volume`` (m^3), and what the
     moves make. ``frozen``: vertices that must not move alone (the cut surface). ``twins``: the
     copy on the other lip of each vertex inside the wound (both ways; a vertex the cut did not
-    duplicate, at the wound's front, maps to itself), for sliding. ``pinned``: vertices that never move, not even sliding, and whose
-    elements no flip removes (a progressive cut's elements still under the blade).
+    duplicate, at the wound's front, maps to itself), for sliding. ``pinned``: vertices that
+    never move, not even sliding, and whose elements no flip or contraction removes (a
+    progressive cut's elements still under the blade).
     ``may_move(vertices, parents, weights)``: per move of ``vertices[i]`` to the combination
     ``parents[i]``, ``weights[i]``, whether smoothing may make it (a boolean array; the cutter
     refuses a move onto or across the cut surface, which would join the sides);
@@ -184,8 +185,9 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
         for _, t in queue:
             if not topo.alive[t] or sine(t) >= goal:
                 continue
-            made = (twins and _slide(topo, t, twins, pinned, sine, stats)) or _flip_edges(topo, t, fixed, accept, stats) \
-                or _flip_faces(topo, t, fixed, accept, stats) or _smooth(topo, t, fixed, sine, stats, may_move) \
+            made = (twins and _slide(topo, t, twins, pinned, sine, stats)) \
+                or _flip_edges(topo, t, fixed, accept, stats) or _flip_faces(topo, t, fixed, accept, stats) \
+                or _smooth(topo, t, fixed, sine, stats, may_move) \
                 or (contract and _contract(topo, t, frozen, twins or {}, pinned, accept, stats))
             if made:
                 work += made
@@ -354,7 +356,8 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
                 if w not in twins or twins[u] < first:
                     continue
                 pairs.append((twins[u], twins[w]))
-            if pinned and any(v in pinned for u_, _ in pairs for s in topo.vertex_tets[u_] for v in topo.tets[s].tolist()):
+            if pinned and any(not pinned.isdisjoint(topo.tets[s].tolist()) for u_, _ in pairs
+                              for s in topo.vertex_tets[u_]):
                 continue
             try:
                 checked = [check_contraction(topo, u_, w_, accept=accept) for u_, w_ in pairs]

@@ -441,7 +441,8 @@ def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None) -> tupl
     before = sum(topo.rest_volume(t) for t in star)
     after = sum(signed_volume(*[rest[v] for v in tet]) for tet in added)
     if not abs(after - before) <= 1e-12 * before:  # (the elements all on the edge: none left)
-        raise TopologyError(f"contraction of edge ({u}, {w}) would change the volume by {(after - before) / before:.1e}")
+        raise TopologyError(f"contraction of edge ({u}, {w}) would change the volume by "
+                            f"{(after - before) / before:.1e}")
     return star, added, qualities
 
 
