@@ -254,12 +254,12 @@ class Cutter:
         if mean_edge_length is None:
             mean_edge_length = topology.to_mesh().mean_edge_length()
         self.mean_edge_length = float(mean_edge_length)
-        #: the smallest dihedral angle (degrees) the improvement works towards: its target, or
-        #: the input mesh's worst where that is smaller (its own slivers are not the cut's)
-        self.improve_target = min(IMPROVE_TARGET, _worst_angle(topology)) if self.improve else IMPROVE_TARGET
-        #: the smallest rest volume (m^3) the improvement works towards: a fraction of the input
-        #: mesh's median element, or its smallest element where that is smaller
-        self.improve_min_volume = _volume_floor(topology) if self.improve else 0.0
+        #: the smallest dihedral angle (degrees) and rest volume (m^3) the improvement works
+        #: towards: its target angle and a fraction of the input mesh's median element, or the
+        #: input's worst angle and smallest element where they are smaller (its own slivers are
+        #: not the cut's)
+        self.improve_target, self.improve_min_volume = _improve_goals(topology) if self.improve \
+            else (IMPROVE_TARGET, 0.0)
         self._longest = self._longest_edge()  # (m, rest; grown by the elements cuts make)
         #: vertices this cutter inserted by 1-4 splits, and their copies when a cut duplicated
         #: them: one on the surface serves again as the split vertex of its element's pieces when
@@ -1176,20 +1176,16 @@ class Cutter:
         topo.drop_unused_vertices()
 
 
-def _volume_floor(topology: TetTopology) -> float:
-    """``MIN_VOLUME_FRACTION`` of the median rest volume of the live elements, or their
-    smallest volume where that is smaller (m^3)."""
-    tets = topology.tets[topology.live_tets()]
+def _improve_goals(topology: TetTopology) -> tuple[float, float]:
+    """The improvement's target angle (degrees), or the live elements' smallest dihedral angle
+    where that is smaller, and ``MIN_VOLUME_FRACTION`` of their median rest volume, or their
+    smallest where that is smaller (m^3; 0 without elements)."""
+    tets, rest = topology.tets[topology.live_tets()], topology.rest_positions
+    target = min(IMPROVE_TARGET, float(dihedral_angles(rest, tets).min(initial=180.0)))
     if not len(tets):
-        return 0.0
-    volumes = tet_volumes(topology.rest_positions, tets)
-    return float(min(IMPROVE_MIN_VOLUME_FRACTION * np.median(volumes), volumes.min()))
-
-
-def _worst_angle(topology: TetTopology) -> float:
-    """The smallest dihedral angle (degrees) of the live elements, in the rest configuration."""
-    tets = topology.tets[topology.live_tets()]
-    return float(dihedral_angles(topology.rest_positions, tets).min(initial=180.0))
+        return target, 0.0
+    volumes = tet_volumes(rest, tets)
+    return target, float(min(IMPROVE_MIN_VOLUME_FRACTION * np.median(volumes), volumes.min()))
 
 
 def _on_both_sides(tets: np.ndarray, sides: np.ndarray, vertex_count: int) -> np.ndarray:

@@ -428,11 +428,8 @@ def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None) -> tupl
     if topo.unsewn and any(u in key for key in topo.unsewn):
         raise TopologyError(f"contraction of edge ({u}, {w}): a face on {u} is unsewn")
     added = [_substitute(tet, u, w) for tet in kept]
-    normals = _boundary_normals(topo, u)
-    if len(normals):
-        step = topo.vertex_data[w, REST] - topo.vertex_data[u, REST]
-        if np.abs(normals @ step).max() > 1e-12 * np.linalg.norm(step):
-            raise TopologyError(f"contraction of edge ({u}, {w}) would take boundary vertex {u} off its boundary")
+    if _off_its_planes(_boundary_normals(topo, u), topo.vertex_data[w, REST] - topo.vertex_data[u, REST]):
+        raise TopologyError(f"contraction of edge ({u}, {w}) would take boundary vertex {u} off its boundary")
     if accept is not None and not (added and accept(star, added)):  # (asked first: it refuses most)
         raise TopologyError(f"contraction of edge ({u}, {w}): not an improvement")
     qualities: list[float] = []
@@ -536,14 +533,18 @@ def check_vertex_move(topo: TetTopology, v: int, parents, weights, *, feature_an
     around = sorted(topo.vertex_tets[v])
     _check(topo, [_substitute(topo.tet(t), v, -1) for t in around], f"moving vertex {v}", {-1: target})
     normals = _boundary_normals(topo, v)
-    if len(normals):
-        step = target - topo.vertex_data[v, REST]
-        if np.abs(normals @ step).max() > 1e-12 * (np.linalg.norm(step) + 1e-300):
-            along = len(parents) == 2 and v in parents and topo.is_boundary_edge(*parents)
-            smooth = (normals @ normals.T).min() > np.cos(np.radians(feature_angle))
-            if not (along and smooth and feature_angle > 0.0):
-                raise TopologyError(f"moving boundary vertex {v} would take it off its boundary")
+    if _off_its_planes(normals, target - topo.vertex_data[v, REST]):
+        along = len(parents) == 2 and v in parents and topo.is_boundary_edge(*parents)
+        smooth = (normals @ normals.T).min() > np.cos(np.radians(feature_angle))
+        if not (along and smooth and feature_angle > 0.0):
+            raise TopologyError(f"moving boundary vertex {v} would take it off its boundary")
     return weights
+
+
+def _off_its_planes(normals: np.ndarray, step: np.ndarray) -> bool:
+    """Whether a boundary vertex's ``step`` (rest, m) leaves the plane of one of its boundary
+    faces (unit ``normals`` (K, 3); none for an inner vertex), beyond rounding."""
+    return len(normals) > 0 and bool(np.abs(normals @ step).max() > 1e-12 * (np.linalg.norm(step) + 1e-300))
 
 
 def _boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
