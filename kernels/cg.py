@@ -171,6 +171,23 @@ def cg_advance(max_iterations: int, rd: wp.array(dtype=float), norms: wp.array(d
     running[0] = wp.where(rd[k] > norms[0] and k < max_iterations, 1, 0)
 
 
+@wp.kernel
+def listed_apply_mass(
+    nodes: wp.array(dtype=wp.int32),
+    inv_diagonal: wp.array(dtype=wp.vec3),
+    mass_scale: wp.array(dtype=float),
+    x: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
+):
+    """The mass term of ``y = A x`` at the listed (distinct) nodes, as :func:`cg_apply_mass`
+    adds it: ``y_i += m_i x_i``, or 0 at a fixed node."""
+    i = nodes[wp.tid()]
+    if inv_diagonal[i][0] == 0.0:
+        y[i] = wp.vec3(0.0)
+    else:
+        y[i] = y[i] + mass_scale[i] * x[i]
+
+
 # -- kernels of the same system as a warp.optim.linear LinearOperator (for the benchmark that
 #    compares this fused loop with warp.optim.linear.cg) ----------------------------------
 

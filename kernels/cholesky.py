@@ -14,9 +14,9 @@ for quadratic elements the factor is of the corners and a node is interpolated f
 (``wcut.preconditioner``), with ``D_i^-1 r_i`` added (``smoother``). A node without a row (-1:
 added or changed by a topological change since the factorization) gets the Jacobi
 preconditioner ``z_i = D_i^-1 r_i``; a fixed node gets 0. A node of the patch
-(``patch_position[i] >= 0``) takes the second, small factor of the patch instead. Every part is
-symmetric positive semi-definite, and their sum is positive definite, so it is a valid
-preconditioner for the conjugate gradient.
+(``patch_position[i] >= 0``, listed in ``patch_nodes``) takes the second, small factor of the
+patch instead, before and after the factor (:func:`rotate_into_patch`, :func:`rotate_from_patch`;
+the symmetric multiplicative combination of ``wcut.preconditioner``).
 
 The triangular solves (:func:`block_forward`, :func:`block_backward`) run on one thread each:
 a row needs the rows before it. On the CPU, where Warp runs threads one after another anyway,
@@ -65,27 +65,76 @@ def node_rotations_gauss(
 @wp.kernel
 def rotate_into_factor(
     chunk: int,
+    subtract: int,
     factor_rows: wp.array2d(dtype=wp.int32),
     factor_weights: wp.array2d(dtype=float),
     patch_position: wp.array(dtype=wp.int32),
     node_rotation: wp.array(dtype=wp.quat),
     r: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
     t: wp.array(dtype=wp.vec3),
     t_patch: wp.array(dtype=wp.vec3),
 ):
-    """``t_patch[patch_position[i]] = R_i^T r_i`` for the nodes of the patch, else
-    ``t[factor_rows[i, k]] += factor_weights[i, k] R_i^T r_i`` (both zero before)."""
+    """``t[factor_rows[i, k]] += factor_weights[i, k] R_i^T u_i`` for the nodes outside the
+    patch, ``u = r - y`` with ``subtract`` (else ``r``; ``t`` zero before); without
+    ``subtract``, also ``t_patch[patch_position[i]] = R_i^T r_i`` for the nodes of the patch."""
     lo, hi = thread_range(wp.tid(), chunk, r.shape[0])
     for i in range(lo, hi):
         p = patch_position[i]
-        u = wp.quat_rotate_inv(node_rotation[i], r[i])
+        ri = r[i]
+        if subtract != 0:
+            ri = ri - y[i]
+        u = wp.quat_rotate_inv(node_rotation[i], ri)
         if p >= 0:
-            t_patch[p] = u
+            if subtract == 0:
+                t_patch[p] = u
         else:
             for k in range(2):
                 row = factor_rows[i, k]
                 if row >= 0:
                     wp.atomic_add(t, row, factor_weights[i, k] * u)
+
+
+@wp.kernel
+def rotate_into_patch(
+    patch_nodes: wp.array(dtype=wp.int32),
+    node_rotation: wp.array(dtype=wp.quat),
+    subtract: int,
+    r: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
+    t_patch: wp.array(dtype=wp.vec3),
+):
+    """``t_patch[k] = R_i^T u_i`` for node ``i = patch_nodes[k]``, ``u = r - y`` with
+    ``subtract``, else ``r``."""
+    k = wp.tid()
+    i = patch_nodes[k]
+    ri = r[i]
+    if subtract != 0:
+        ri = ri - y[i]
+    t_patch[k] = wp.quat_rotate_inv(node_rotation[i], ri)
+
+
+@wp.kernel
+def rotate_from_patch(
+    patch_nodes: wp.array(dtype=wp.int32),
+    node_rotation: wp.array(dtype=wp.quat),
+    counter: wp.array(dtype=wp.int32),
+    correct: int,
+    r: wp.array(dtype=wp.vec3),
+    t_patch: wp.array(dtype=wp.vec3),
+    z: wp.array(dtype=wp.vec3),
+    rz: wp.array(dtype=float),
+):
+    """For node ``i = patch_nodes[k]``: ``z_i = R_i t_patch[k]``; with ``correct``, ``z_i +=
+    R_i t_patch[k]`` and ``rz[counter] += r_i . R_i t_patch[k]`` instead."""
+    k = wp.tid()
+    i = patch_nodes[k]
+    w = wp.quat_rotate(node_rotation[i], t_patch[k])
+    if correct != 0:
+        z[i] = z[i] + w
+        wp.atomic_add(rz, counter[0], wp.dot(r[i], w))
+    else:
+        z[i] = w
 
 
 @wp.func

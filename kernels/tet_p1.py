@@ -138,6 +138,26 @@ def tet_forces(
                       + matrix_scale * rotation_stiffness_diagonal(Ks, r))
 
 
+@wp.func
+def element_matvec(
+    e: int,
+    tet_indices: wp.array(dtype=wp.vec4i),
+    tet_rotated_gradients: wp.array(dtype=wp.mat33),
+    tet_rotation_stiffness: wp.array(dtype=wp.mat33),
+    tet_stiffness: wp.array(dtype=wp.vec2),
+    x: wp.array(dtype=wp.vec3),
+    scale: float,
+    y: wp.array(dtype=wp.vec3),
+):
+    """Element e's share of ``y += scale K_t x`` (see :func:`tet_matvec`)."""
+    t = tet_indices[e]
+    g = tet_rotated_gradients[e]
+    c = tet_stiffness[e]
+    x3 = x[t[3]]
+    H = wp.matrix_from_cols(x[t[0]] - x3, x[t[1]] - x3, x[t[2]] - x3) * g
+    scatter_columns(t, tangent_stress(H, c[0], c[1], tet_rotation_stiffness[e], scale) * wp.transpose(g), y)
+
+
 @wp.kernel
 def tet_matvec(
     tet_indices: wp.array(dtype=wp.vec4i),
@@ -152,13 +172,23 @@ def tet_matvec(
 
     Uses the rotated gradients and rotation stiffness of the last :func:`tet_forces`.
     """
-    e = wp.tid()
-    t = tet_indices[e]
-    g = tet_rotated_gradients[e]
-    c = tet_stiffness[e]
-    x3 = x[t[3]]
-    H = wp.matrix_from_cols(x[t[0]] - x3, x[t[1]] - x3, x[t[2]] - x3) * g
-    scatter_columns(t, tangent_stress(H, c[0], c[1], tet_rotation_stiffness[e], scale) * wp.transpose(g), y)
+    element_matvec(wp.tid(), tet_indices, tet_rotated_gradients, tet_rotation_stiffness, tet_stiffness, x, scale, y)
+
+
+@wp.kernel
+def tet_matvec_listed(
+    elements: wp.array(dtype=wp.int32),
+    tet_indices: wp.array(dtype=wp.vec4i),
+    tet_rotated_gradients: wp.array(dtype=wp.mat33),
+    tet_rotation_stiffness: wp.array(dtype=wp.mat33),
+    tet_stiffness: wp.array(dtype=wp.vec2),
+    x: wp.array(dtype=wp.vec3),
+    scale: float,
+    y: wp.array(dtype=wp.vec3),
+):
+    """:func:`tet_matvec` over the listed elements only (one thread each)."""
+    element_matvec(elements[wp.tid()], tet_indices, tet_rotated_gradients, tet_rotation_stiffness, tet_stiffness, x,
+                   scale, y)
 
 
 @wp.kernel

@@ -255,6 +255,30 @@ def tet_forces(
     scatter(t, diagonal, particle_diagonal)
 
 
+@wp.func
+def element_matvec(
+    e: int,
+    tet_indices: wp.array(dtype=vec10i),
+    tet_rotated_gradients: wp.array2d(dtype=wp.mat33),
+    tet_rotation_stiffness: wp.array2d(dtype=wp.mat33),
+    tet_stiffness: wp.array2d(dtype=wp.vec2),
+    x: wp.array(dtype=wp.vec3),
+    scale: float,
+    y: wp.array(dtype=wp.vec3),
+):
+    """Element e's share of ``y += scale K_t x`` (see :func:`tet_matvec`)."""
+    t = tet_indices[e]
+    X = gather(x, t)
+    B = gradient_bases(X)
+    acc = mat14x3()
+    for g in range(4):
+        gm = tet_rotated_gradients[e, g]
+        c = tet_stiffness[e, g]
+        stress = tangent_stress(gauss_gradient(X, B, g) * gm, c[0], c[1], tet_rotation_stiffness[e, g], scale)
+        acc = add_gauss_nodal(acc, stress * wp.transpose(gm), g)
+    scatter(t, finish_nodal(acc), y)
+
+
 @wp.kernel
 def tet_matvec(
     tet_indices: wp.array(dtype=vec10i),
@@ -267,17 +291,23 @@ def tet_matvec(
 ):
     """y += scale K_t x, matrix-free, with the rotated gradients and rotation stiffness of the
     last :func:`tet_forces`."""
-    e = wp.tid()
-    t = tet_indices[e]
-    X = gather(x, t)
-    B = gradient_bases(X)
-    acc = mat14x3()
-    for g in range(4):
-        gm = tet_rotated_gradients[e, g]
-        c = tet_stiffness[e, g]
-        stress = tangent_stress(gauss_gradient(X, B, g) * gm, c[0], c[1], tet_rotation_stiffness[e, g], scale)
-        acc = add_gauss_nodal(acc, stress * wp.transpose(gm), g)
-    scatter(t, finish_nodal(acc), y)
+    element_matvec(wp.tid(), tet_indices, tet_rotated_gradients, tet_rotation_stiffness, tet_stiffness, x, scale, y)
+
+
+@wp.kernel
+def tet_matvec_listed(
+    elements: wp.array(dtype=wp.int32),
+    tet_indices: wp.array(dtype=vec10i),
+    tet_rotated_gradients: wp.array2d(dtype=wp.mat33),
+    tet_rotation_stiffness: wp.array2d(dtype=wp.mat33),
+    tet_stiffness: wp.array2d(dtype=wp.vec2),
+    x: wp.array(dtype=wp.vec3),
+    scale: float,
+    y: wp.array(dtype=wp.vec3),
+):
+    """:func:`tet_matvec` over the listed elements only (one thread each)."""
+    element_matvec(elements[wp.tid()], tet_indices, tet_rotated_gradients, tet_rotation_stiffness, tet_stiffness, x,
+                   scale, y)
 
 
 @wp.kernel

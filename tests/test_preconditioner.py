@@ -5,6 +5,7 @@ patch) until the factor is refreshed after a rebuild."""
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import warp as wp
 from scipy.spatial.transform import Rotation
@@ -171,14 +172,29 @@ def test_the_factor_is_refreshed_after_a_rebuild(background):
     assert np.abs(P.apply(r) - expected).max() < 1e-4 * np.abs(expected).max()
 
 
-def test_the_nodes_a_cut_touched_get_the_factor_of_their_own_rest_matrix(monkeypatch):
+def _factor_inverse(F: pc.BlockFactor):
+    """``x -> (L L^T)^-1 x`` of a block factor, on the host (scipy), by block rows."""
+    n = len(F.order)
+    rows = np.concatenate([np.repeat(np.arange(n), np.diff(F.row_start)), np.arange(n)])
+    cols = np.concatenate([F.block_column, np.arange(n)])
+    blocks = np.concatenate([F.blocks, np.linalg.inv(F.diagonal_inverse)])
+    dof_rows = (3 * rows[:, None, None] + np.arange(3)[None, :, None]).repeat(3, 2).ravel()
+    dof_cols = (3 * cols[:, None, None] + np.arange(3)[None, None, :]).repeat(3, 1).ravel()
+    L = sp.coo_matrix((blocks.ravel(), (dof_rows, dof_cols)), shape=(3 * n, 3 * n)).tocsc()
+    return spla.splu((L @ L.T).tocsc()).solve
+
+
+def test_the_nodes_a_cut_touched_get_a_patch_combined_with_the_factor_of_before(monkeypatch):
     """Until the refresh, the patch serves the nodes outside the factor of before and their free
-    neighbours: on them the preconditioner inverts the new model's rest matrix restricted to
-    those nodes; the other nodes get the factor of before, never the patch's values."""
+    neighbours, combined with that factor multiplicatively: ``z1 = B_S r``, ``z2 = z1 + B_F (r -
+    A z1)``, ``z = z2 + B_S (r - A z2)`` (B_S the inverse of the new rest matrix on the patch,
+    B_F the factor of before on the other nodes, A the system matrix). So the patch's rows of
+    ``A z`` are those of r, and the preconditioner is symmetric and positive definite."""
     monkeypatch.setattr(pc, "REFRESH_SECONDS_PER_BLOCK", 1.0)  # the refresh due a long way off
-    model, state, solver, change = _cut_beam(True, cells=(12, 2, 2))
+    model, _, solver, change = _cut_beam(True, cells=(12, 2, 2))
+    rest, scratch = model.state(), model.state()
+    solver.step(rest, scratch, None, DT)  # makes the patch; the element pass at rest: A is the rest matrix
     P = solver.preconditioner
-    P.update(DT)  # (the patch is made at the first step after the change)
     outside = P._outside()
     patch = np.flatnonzero(P.patch_position.numpy() >= 0)
     cells = model.tet_indices.numpy()
@@ -186,15 +202,46 @@ def test_the_nodes_a_cut_touched_get_the_factor_of_their_own_rest_matrix(monkeyp
     free_mask = model.particle_fixed.numpy() == 0
     assert len(outside) > 0 and np.array_equal(patch, around[free_mask[around]])
     assert P.patch_count == len(patch) < model.particle_count // 2
-    P.node_rotation.assign(np.tile([0.0, 0.0, 0.0, 1.0], (model.particle_count, 1)).astype(np.float32))
-    A, _ = pc.rest_system_matrix(pc.RestData.of(model), DT, 0.0, 0.0, nodes=patch)
-    r = np.zeros((model.particle_count, 3))
-    r[patch] = np.random.default_rng(6).standard_normal((len(patch), 3))
-    z = P.apply(r)
-    expected = spla.spsolve(A.tocsc(), r[patch].ravel()).reshape(-1, 3)
-    assert np.abs(z[patch] - expected).max() < 1e-4 * np.abs(expected).max()
-    others = np.setdiff1d(np.arange(model.particle_count), patch)
-    assert np.abs(z[others]).max() == 0.0  # the patch's nodes give the factor of before nothing
+    assert np.allclose(P.node_rotation.numpy(), [0.0, 0.0, 0.0, 1.0], atol=1e-6)
+    A, free = pc.rest_system_matrix(pc.RestData.of(model), DT, 0.0, 0.0)
+    A = A.tocsr()
+    at = np.full(model.particle_count, -1)
+    at[free] = np.arange(len(free))
+    dofs = lambda nodes: (3 * at[nodes][:, None] + np.arange(3)).ravel()  # noqa: E731
+
+    def patch_solve(r):
+        z = np.zeros_like(r)
+        z[dofs(patch)] = spla.spsolve(A[dofs(patch)][:, dofs(patch)].tocsc(), r[dofs(patch)])
+        return z
+
+    inside = np.flatnonzero((P.factor_rows.numpy()[:, 0] >= 0) & (P.patch_position.numpy() < 0))
+    factor_rows = P.factor_rows.numpy()[inside, 0]
+    solve = _factor_inverse(P._factor)
+
+    def factor_solve(r):
+        t = np.zeros(3 * len(P._factor.order))
+        t[(3 * factor_rows[:, None] + np.arange(3)).ravel()] = r[dofs(inside)]
+        z = np.zeros_like(r)
+        z[dofs(inside)] = solve(t)[(3 * factor_rows[:, None] + np.arange(3)).ravel()]
+        return z
+
+    product = solver._local_product(DT)
+    rng = np.random.default_rng(6)
+    results = []
+    for _ in range(2):
+        r = np.zeros((model.particle_count, 3))
+        r[free] = rng.standard_normal((len(free), 3))
+        z = P.apply(r, product=product)
+        b = r[free].ravel()
+        z1 = patch_solve(b)
+        z2 = z1 + factor_solve(b - A @ z1)
+        expected = z2 + patch_solve(b - A @ z2)
+        assert np.abs(z[free].ravel() - expected).max() < 1e-4 * np.abs(expected).max()
+        assert np.abs((A @ z[free].ravel() - b)[dofs(patch)]).max() < 1e-4 * np.abs(b).max()
+        assert np.abs(z[~free_mask]).max() == 0.0
+        results.append((b, z[free].ravel()))
+    (u, Pu), (v, Pv) = results
+    assert abs(u @ Pv - v @ Pu) < 1e-4 * abs(u @ Pv) and u @ Pu > 0 and v @ Pv > 0
 
 
 def _stars(cells: np.ndarray, rest: np.ndarray, count: int) -> list[set]:

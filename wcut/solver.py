@@ -250,8 +250,9 @@ class SolverCorotational:
         """A solver with this one's settings for ``model``, which ``change`` (a
         :class:`wcut.topology.TopologyChange`) made from this solver's model
         (:meth:`wcut.model.Model.rebuild`). The preconditioner's factor is carried over (the
-        vertices the change touched get the Jacobi preconditioner until a new factor, computed
-        in the background, is taken); this solver must not step again."""
+        vertices the change touched and their neighbours get a patch until a new factor,
+        computed in the background, is taken; ``wcut.preconditioner``); this solver must not
+        step again."""
         carried = None if self.preconditioner is None else self.preconditioner.carried(model, change)
         solver = SolverCorotational(model, **self._settings, _carried=carried)
         solver.step_count, solver.elapsed, solver._start_speed = self.step_count, self.elapsed, self._start_speed
@@ -337,7 +338,8 @@ class SolverCorotational:
                            inputs=[self.cg_tolerance ** 2, self._cg_iterations, rd], outputs=[norms, self._running])]
         team = self._team if self.cpu_threads > 1 else None
         self._concurrent_solve = not jacobi and self.preconditioner.concurrent(team)
-        body = [] if jacobi else self.preconditioner.record_apply(chunk, counter, self.inv_diagonal, r, z, rz, team)
+        body = [] if jacobi else self.preconditioner.record_apply(chunk, counter, self.inv_diagonal, r, z, rz, team,
+                                                                   product=self._local_product(dt))
         body.append(wp.launch(cg.cg_direction, node_threads, device=d, record_cmd=True,
                               inputs=[chunk, counter, z, rz], outputs=[p]))
         if m.tet_count:
@@ -370,6 +372,27 @@ class SolverCorotational:
         """What the recorded conjugate-gradient launches depend on besides their arrays."""
         generation = None if self.preconditioner is None else self.preconditioner.generation
         return dt, self.model.rayleigh_stiffness, self.cg_tolerance, generation
+
+    def _local_product(self, dt: float):
+        """``product(elements, nodes, x, y)``: the recorded launches of ``y += A x`` (the system
+        matrix of a step of ``dt``) from the listed elements, every attachment and the mass of
+        the listed nodes: the patch's products (``wcut.preconditioner``)."""
+        m, d, stiffness_scale = self.model, self.model.device, self.stiffness_scale(dt)
+
+        def product(elements, nodes, x, y) -> list:
+            launches = [wp.launch(
+                self._elements.tet_matvec_listed, elements.shape[0], device=d, record_cmd=True,
+                inputs=[elements, m.tet_indices, self.tet_rotated_gradients, self.tet_rotation_stiffness,
+                        m.tet_stiffness, x, stiffness_scale], outputs=[y])]
+            if m.attachment_count:
+                launches.append(wp.launch(attachments.attachment_matvec, m.attachment_count, device=d, record_cmd=True,
+                                          inputs=[m.attachment_indices, m.attachment_weights, m.attachment_stiffness,
+                                                  x, dt * dt], outputs=[y]))
+            launches.append(wp.launch(cg.listed_apply_mass, nodes.shape[0], device=d, record_cmd=True,
+                                      inputs=[nodes, self.inv_diagonal, self.mass_scale, x], outputs=[y]))
+            return launches
+
+        return product
 
     def _record_tet_matvec(self, stiffness_scale: float):
         """The recorded element product ``q += c_A K_t p`` of one CG iteration, split over
