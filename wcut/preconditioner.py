@@ -636,8 +636,9 @@ class RotatedCholesky:
                                  inputs=[nodes, self.node_rotation, counter, correct, r, patch_t], outputs=[z, rz])
 
             # z1 = B_S r; the factor's part from r - A z1; then B_S of what is left on the patch
-            before = [*patch_solve(0), _MemsetLaunch(z), from_patch(0), _MemsetLaunch(y), *product(elements, nodes, z, y)]
-            after = [_MemsetLaunch(y), *product(elements, nodes, z, y), *patch_solve(1), from_patch(1)]
+            z_product = [_MemsetLaunch(y), *product(elements, nodes, z, y)]  # y = A z
+            before = [*patch_solve(0), _MemsetLaunch(z), from_patch(0), *z_product]
+            after = [*z_product, *patch_solve(1), from_patch(1)]
         else:
             before, after = [], []
         return [
