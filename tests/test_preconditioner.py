@@ -1,7 +1,7 @@
 """The rotated rest factor (wcut.preconditioner): its matrix is the assembled system matrix of the
 rest shape, its application is that matrix's inverse turned by the node rotations, the nodes a
-topological change touched and their neighbours get the factor of their own rest matrix (the
-patch) until the factor is refreshed after a rebuild."""
+topological change touched get the factor of their own rest matrix (the patch), combined with
+the factor of before, until the factor is refreshed after a rebuild."""
 
 import numpy as np
 import pytest
@@ -185,8 +185,8 @@ def _factor_inverse(F: pc.BlockFactor):
 
 
 def test_the_nodes_a_cut_touched_get_a_patch_combined_with_the_factor_of_before(monkeypatch):
-    """Until the refresh, the patch serves the nodes outside the factor of before and their free
-    neighbours, combined with that factor multiplicatively: ``z1 = B_S r``, ``z2 = z1 + B_F (r -
+    """Until the refresh, the patch serves the nodes outside the factor of before, combined with
+    that factor multiplicatively: ``z1 = B_S r``, ``z2 = z1 + B_F (r -
     A z1)``, ``z = z2 + B_S (r - A z2)`` (B_S the inverse of the new rest matrix on the patch,
     B_F the factor of before on the other nodes, A the system matrix). So the patch's rows of
     ``A z`` are those of r, and the preconditioner is symmetric and positive definite."""
@@ -197,10 +197,8 @@ def test_the_nodes_a_cut_touched_get_a_patch_combined_with_the_factor_of_before(
     P = solver.preconditioner
     outside = P._outside()
     patch = np.flatnonzero(P.patch_position.numpy() >= 0)
-    cells = model.tet_indices.numpy()
-    around = np.unique(cells[np.isin(cells, outside).any(axis=1)])
     free_mask = model.particle_fixed.numpy() == 0
-    assert len(outside) > 0 and np.array_equal(patch, around[free_mask[around]])
+    assert len(outside) > 0 and np.array_equal(patch, outside)
     assert P.patch_count == len(patch) < model.particle_count // 2
     assert np.allclose(P.node_rotation.numpy(), [0.0, 0.0, 0.0, 1.0], atol=1e-6)
     A, free = pc.rest_system_matrix(pc.RestData.of(model), DT, 0.0, 0.0)
@@ -301,27 +299,30 @@ def test_the_factor_keeps_every_node_whose_elements_a_change_left_as_they_were(o
 
 
 def test_the_patch_cuts_the_iterations_after_a_cut(monkeypatch):
-    """The steps after a cut, before the refresh: with the patch, far fewer iterations than with
-    Jacobi on the nodes the cut touched (the factor of before still joins their neighbours to
-    the material the cut removed)."""
+    """The steps after a cut, before the refresh: with the patch, about as few iterations as with
+    the new model's own factor (measured: 4-5 against 3), and far fewer than with Jacobi on the
+    nodes the cut touched (55-58: the factor of before still joins their neighbours to the
+    material the cut removed)."""
     from wcut import solver as solver_module
 
     monkeypatch.setattr(solver_module, "STRUGGLING_ITERATIONS", 10 ** 6)
     counts = {}
-    for patched in (True, False):
-        if not patched:
+    for case in ("refreshed", "patched", "jacobi"):
+        if case == "jacobi":
             monkeypatch.setattr(pc.RotatedCholesky, "_make_patch", lambda self: setattr(self, "_patch_due", False))
-        monkeypatch.setattr(pc, "REFRESH_SECONDS_PER_BLOCK", 1.0)  # no refresh in these steps
-        model, state, solver, _ = _cut_beam(True, cells=(12, 2, 2))
+        # no refresh in these steps, or (refreshed) one taken at the first
+        monkeypatch.setattr(pc, "REFRESH_SECONDS_PER_BLOCK", 0.0 if case == "refreshed" else 1.0)
+        model, state, solver, _ = _cut_beam(case != "refreshed", cells=(12, 2, 2))
         solver.cg_tolerance = 1e-4
         scratch = model.state()
-        counts[patched] = []
+        counts[case] = []
         for _ in range(4):
             solver.step(state, scratch, None, DT)
             state, scratch = scratch, state
-            counts[patched].append(solver.last_cg_iterations)
-        assert solver.preconditioner.refreshing
-    assert sum(counts[True]) < 0.5 * sum(counts[False]), counts
+            counts[case].append(solver.last_cg_iterations)
+        assert solver.preconditioner.refreshing == (case != "refreshed")
+    assert all(p <= r + 2 for p, r in zip(counts["patched"], counts["refreshed"])), counts
+    assert sum(counts["patched"]) < 0.2 * sum(counts["jacobi"]), counts
 
 
 def test_a_background_refresh_is_taken_at_a_fixed_step():

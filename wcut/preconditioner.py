@@ -31,9 +31,9 @@ apart into 3x3 blocks. Scipy has no sparse Cholesky of its own; SuperLU's LU of 
 matrix in symmetric mode is ``L D L^T``.
 
 After a topological change (:meth:`RotatedCholesky.carried`) the factor of before keeps
-serving the vertices the change left alone. The vertices of the elements it changed, and their
-neighbours, get a *patch*: the factor of the new rest matrix on those nodes alone,
-``A0[S][:, S]``, computed at the next step (a few milliseconds: it holds some hundred nodes). A
+serving the vertices the change left alone. The vertices of the elements it changed get a
+*patch*: the factor of the new rest matrix on those nodes alone, ``A0[S][:, S]``, computed at
+the next step (a few milliseconds: it holds some hundred nodes). A
 new factor of the whole new model is computed on a background thread (SuperLU releases the GIL)
 and taken at the first step after it is ready. The same happens when the time step or the
 damping change. The patch's nodes are left out of the factor of before, and the two combine
@@ -50,8 +50,9 @@ A-contraction, and ``B_F`` is positive on every other node). The sum of the two 
 combination) drops the coupling of the patch to the rest: on the organ midway through
 ``organ_cut``'s cut (109-146 nodes outside the factor, patches of 225-283 nodes, rest
 matrices, three right-hand sides, relative residual 1e-2), the sum needed 9-36 iterations,
-the multiplicative form 1-2; over the scene's run, 1624 iterations became 438. Why the
-neighbours: without them the multiplicative form needed 1-5 there.
+the multiplicative form 1-2; over the scene's run, 1624 iterations became 459. The sum needs
+the patch to hold the nodes' neighbours too; the product does not: with them, the run took
+438 iterations, but making a patch took twice as long (18.5 against 9.0 ms).
 """
 
 from __future__ import annotations
@@ -445,7 +446,7 @@ class RotatedCholesky:
 
     @property
     def patch_count(self) -> int:
-        """Nodes the patch serves: those outside the factor and their free neighbours."""
+        """Nodes the patch serves: the free nodes outside the factor."""
         return 0 if self._patch is None else len(self._patch[0].order)
 
     def _outside(self) -> np.ndarray:
@@ -514,7 +515,7 @@ class RotatedCholesky:
         positions = np.full(m.particle_count, -1, dtype=np.int32)
         self._patch = None
         if len(outside):
-            nodes = _with_neighbours(m, outside)
+            nodes = outside
             patch = factor(rest_system_matrix(RestData.of(m), *self._factored_for, nodes=nodes)[0], split=False)
             positions[nodes[patch.order]] = np.arange(len(nodes), dtype=np.int32)
             cells = m.tet_indices.numpy()
@@ -683,15 +684,6 @@ def _device_arrays(factor: BlockFactor, device) -> tuple:
             wp.array(factor.blocks.astype(np.float32), dtype=wp.mat33, device=device),
             wp.array(factor.diagonal_inverse.astype(np.float32), dtype=wp.mat33, device=device),
             wp.zeros(len(factor.order), dtype=wp.vec3, device=device), top)
-
-
-def _with_neighbours(model, nodes: np.ndarray) -> np.ndarray:
-    """``nodes`` and the free nodes that share an element with one of them, ascending."""
-    cells = model.tet_indices.numpy()
-    mask = np.zeros(model.particle_count, dtype=bool)
-    mask[nodes] = True
-    mask[cells[mask[cells].any(axis=1)].ravel()] = True
-    return np.flatnonzero(mask & (model.particle_fixed.numpy() == 0))
 
 
 def _untouched(change, model) -> np.ndarray:
