@@ -383,10 +383,12 @@ def _owners(model) -> np.ndarray:
 CONCURRENT_SOLVE_BLOCKS = 50000
 
 #: CG iterations of a step beyond which a refresh in flight is taken at the next step (waiting
-#: for it) instead of at its due step: after a complete cut of a 20k-element beam the factor of
-#: before needed about 160 iterations per step (3 before the cut), 0.6 s per step, for the 45
-#: steps its refresh was due after
-STRUGGLING_ITERATIONS = 20
+#: for it) instead of at its due step. A factor of the model's own converges in 1-7 iterations
+#: (SOFA's beam at 0.1-10 MPa, the organ), the factor of before with the patch in 1-10 after
+#: organ_cut's increments; after a complete cut of a 20k-element beam it needs 16-20 per step
+#: (9 times the time of a step before), for the 79 steps its refresh is due after: the part cut
+#: off falls freely, and the factor of before still holds it to the clamp
+STRUGGLING_ITERATIONS = 12
 
 #: the refresh's assembly and factorization time per block of the factor (s), measured 4-5 us
 #: on the 2-core development machine (SOFA's 10x10x40 beam: 262k blocks in 1.1-1.3 s): a refresh
