@@ -18,6 +18,8 @@ P2_KEYS = {"name", "tets", "nodes", "step_ms", "steps_per_second", "cpu_threads"
 ACCURACY_KEYS = {"name", "youngs_modulus", "tets", "nodes", "static_tip_mm", "steps", "settled", "first_step_ms", "step_ms",
                  "cg_iterations", "tip_error", "inverted_elements", "jacobi_step_ms", "jacobi_cg_iterations", "jacobi_capped",
                  "jacobi_step_ratio"}
+BLADE_KEYS = {"scene", "frames", "elements", "cut_events", "step_ms_mean", "cut_event_ms_mean", "cg_iterations",
+              "real_time_factor"}
 #: Two short beams of 1 cm cells with the 4 x 5 cross-section of wcut.bench.CUT_SCENES.
 TINY_CUTS = (("tiny_cut", (6, 4, 5), (0.06, 0.04, 0.05)), ("tiny_cut2", (10, 4, 5), (0.10, 0.04, 0.05)))
 
@@ -27,7 +29,7 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     tiny = (("tiny", (2, 2, 4), (0.02, 0.02, 0.04)),)
     result = run_benchmarks(path, quick=True, progress=False, scenes=tiny,
                             cut_scenes=TINY_CUTS, p2_scenes=(("tiny_p2", (2, 2, 4), (0.02, 0.02, 0.04)),),
-                            ar_frames=6, accuracy_scenes=tiny, accuracy_moduli=(1.0e6,))
+                            ar_frames=6, blade_frames=30, accuracy_scenes=tiny, accuracy_moduli=(1.0e6,))
     written = json.loads(path.read_text())
     assert written == json.loads(json.dumps(result))
     assert written["cores"] >= 1
@@ -43,6 +45,13 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     detection, loop = written["ar_detection"], written["ar_loop"]
     assert detection["features"] == 500 and 5000 < detection["pairs"] < 9000 and detection["update_ms"] > 0
     assert loop["frames"] == 7 and loop["features"] > 300 and loop["fps_mean"] > 0
+
+    # the organ's scene: its blade enters the body at frame 28
+    blade = written["blade_scene"]
+    assert set(blade) == BLADE_KEYS and blade["scene"] == "organ_cut" and blade["frames"] == 30
+    assert blade["cut_events"] >= 1 and blade["elements"] > 4300 and blade["cg_iterations"] >= 30
+    assert blade["step_ms_mean"] > 0 and blade["cut_event_ms_mean"] > 0 and blade["real_time_factor"] > 0
+    assert "blade scene" in out
 
     # time to accuracy: the default solver settles on the static deflection of the scipy reference
     (accuracy,) = written["time_to_accuracy"]
@@ -102,10 +111,10 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
 
 def test_benchmark_without_cut_scenes_reports_no_cut_results(tmp_path):
     result = run_benchmarks(tmp_path / "bench.json", quick=True, progress=False, scenes=(), cut_scenes=(),
-                            p2_scenes=(), ar_frames=0, accuracy_scenes=())
+                            p2_scenes=(), ar_frames=0, blade_frames=0, accuracy_scenes=())
     assert result["scenes"] == [] and result["cut_events"] == [] and result["quadratic"] == []
     assert result["time_to_accuracy"] == []
-    assert "ar_loop" not in result and "ar_detection" not in result
+    assert "ar_loop" not in result and "ar_detection" not in result and "blade_scene" not in result
     assert "cut_event_size_ratio" not in result and "cut_methods" not in result and "topology_operators" not in result
     assert json.loads((tmp_path / "bench.json").read_text()) == result
 

@@ -220,3 +220,26 @@ def test_rotation_stiffness_adds_tangent_damping_to_the_force(cube_mesh):
     moving = element_terms(model, x, v=v, velocity_scale=0.01, rotation_stiffness=True)
     np.testing.assert_allclose(moving["f"] - still["f"], -0.01 * stiffness_product(model, still, v),
                                atol=1e-4 * np.abs(moving["f"] - still["f"]).max())
+
+
+def test_listed_product_is_the_product_of_the_listed_elements(cube_mesh):
+    """tet_matvec_listed adds the listed elements' shares of tet_matvec, and nothing else: over
+    a list and its complement, the sum is the whole product."""
+    model = Model(cube_mesh, youngs_modulus=E, poisson_ratio=NU)
+    rng = np.random.default_rng(3)
+    x = cube_mesh.vertices + 0.01 * rng.standard_normal(cube_mesh.vertices.shape)
+    terms = element_terms(model, x, rotation_stiffness=True)
+    p = rng.standard_normal((model.particle_count, 3))
+    listed = np.sort(rng.choice(model.tet_count, model.tet_count // 3, replace=False)).astype(np.int32)
+    rest = np.setdiff1d(np.arange(model.tet_count), listed).astype(np.int32)
+    parts = []
+    for elements in (listed, rest):
+        y = wp.zeros(model.particle_count, dtype=wp.vec3)
+        wp.launch(tet_p1.tet_matvec_listed, len(elements),
+                  inputs=[wp.array(elements, dtype=wp.int32), model.tet_indices, terms["gradients"], terms["tangent"],
+                          model.tet_stiffness, wp.array(p, dtype=wp.vec3), 0.7], outputs=[y])
+        parts.append(y.numpy().astype(np.float64))
+    whole = stiffness_product(model, terms, p, scale=0.7)
+    touched = np.unique(model.tet_indices.numpy()[listed])
+    assert np.abs(parts[0] + parts[1] - whole).max() < 1e-5 * np.abs(whole).max()
+    assert np.abs(np.delete(parts[0], touched, axis=0)).max() == 0.0 and np.abs(parts[0][touched]).max() > 0.0

@@ -38,6 +38,8 @@ CUT_SCENES = (("cut_20k", (200, 4, 5), (2.0, 0.04, 0.05)), ("cut_100k", (1000, 4
 P2_SCENES = (("p2_beam_10k", (10, 10, 20), (0.1, 0.1, 0.2)),)
 #: the augmented-reality loop: a synthetic capture of this scene (thesis 7.7.1, 600 elements)
 AR_SCENE = Path(__file__).resolve().parents[1] / "scenes" / "ar" / "band_cut_side.toml"
+#: a blade in a simulation: the organ opened by a scalpel, 4300 elements, one step per frame
+BLADE_SCENE = Path(__file__).resolve().parents[1] / "scenes" / "organ_cut.toml"
 
 
 def bench_detection(feature_count: int = 500, pair_count: int = 6800, repeats: int = 200) -> dict:
@@ -74,6 +76,27 @@ def bench_ar_loop(frames: int, scene=AR_SCENE) -> dict:
             "features": m["features"], "pairs": m["pairs_initial"], "fps_mean": round(m["fps_mean"], 1),
             "frame_ms_mean": round(m["frame_ms_mean"], 2), "detection_ms_mean": round(m["detection_ms_mean"], 4),
             "cuts_detected": m["cuts_detected"], "dice_final": round(m["dice_final"], 4)}
+def bench_blade_scene(frames: int, scene=BLADE_SCENE) -> dict:
+    """``frames`` frames of ``scene`` (steps and the blade's cut events, as ``wcut run`` runs
+    them, without writing USD): the mean step and cut event, the conjugate-gradient iterations
+    of the last step of each frame, summed, and the real-time factor (simulated time over the
+    wall time of the steps and cut events)."""
+    from .scene import Simulation, load_scene
+
+    loaded = load_scene(scene)
+    sim = Simulation(loaded)
+    iterations = 0
+    for _ in range(frames):
+        sim.advance()
+        iterations += sim.solver.last_cg_iterations
+    steps = frames * sim.substeps
+    return {"scene": Path(scene).stem, "frames": frames, "elements": sim.model.tet_count, "cut_events": sim.cut_events,
+            "step_ms_mean": round(1e3 * sim.step_seconds / steps, 2),
+            "cut_event_ms_mean": round(1e3 * sim.cut_seconds / max(sim.cut_events, 1), 2),
+            "cg_iterations": iterations,
+            "real_time_factor": round(frames / loaded.simulation["fps"] / (sim.step_seconds + sim.cut_seconds), 3)}
+
+
 #: Time to accuracy: SOFA's beams (clamped at z = 0, transverse gravity, 1000 kg/m^3, Poisson
 #: 0.3) at these Young's moduli (Pa), one step per 1/60 s frame, Rayleigh mass damping 1/s so
 #: that the softest beam settles within seconds; settled when the tip has stayed within 1% of its
@@ -521,14 +544,16 @@ def bench_cut_methods(cells, size, epsilons=(0.0, 0.1)) -> list[dict]:
 
 def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True, scenes=SCENES,
                    cut_scenes=CUT_SCENES, p2_scenes=P2_SCENES, ar_frames: int | None = None,
-                   accuracy_scenes=SCENES, accuracy_moduli=ACCURACY_MODULI) -> dict:
+                   blade_frames: int | None = None, accuracy_scenes=SCENES,
+                   accuracy_moduli=ACCURACY_MODULI) -> dict:
     """Run every benchmark scene, print a table and optionally write JSON (atomically).
 
     ``forces_ns_per_element`` is the once-per-step element kernel (rotation, forces, right-hand
     side, preconditioner); ``cg_fused_ms`` the 20 iterations of our loop and
     ``cg_warp_optim_ms`` the same 20 iterations through ``warp.optim.linear.cg``.
     ``ar_frames``: frames of the augmented-reality loop benchmark (default 90, 20 with
-    ``quick``; 0 leaves it out, as does a checkout without ``scenes/ar``).
+    ``quick``; 0 leaves it out, as does a checkout without ``scenes/ar``). ``blade_frames``:
+    frames of ``scenes/organ_cut.toml`` (default: all 90, 30 with ``quick``; 0 leaves it out).
     """
     if json_path is not None:
         check_writable(json_path)  # fail now, not after a minute of benchmarks
@@ -562,6 +587,12 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
         say("augmented reality ...")
         result["ar_detection"] = bench_detection(repeats=50 if quick else 200)
         result["ar_loop"] = bench_ar_loop(ar_frames)
+    blade_frames = (30 if quick else None) if blade_frames is None else blade_frames
+    if blade_frames != 0 and BLADE_SCENE.exists():
+        say("blade scene ...")
+        from .scene import load_scene
+
+        result["blade_scene"] = bench_blade_scene(blade_frames or load_scene(BLADE_SCENE).frame_count)
     if cut_scenes:
         result["cut_event_size_ratio"] = round(cut_events[-1]["event_ms"] / cut_events[0]["event_ms"], 2)
         result["cut_methods"] = bench_cut_methods(*cut_scenes[0][1:])
@@ -601,6 +632,11 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
         _print_rows([result["ar_loop"]], [("scene", "ar loop"), ("frames", "frames"), ("elements", "tets"),
                                           ("features", "features"), ("fps_mean", "frames/s"),
                                           ("detection_ms_mean", "detection ms"), ("dice_final", "dice")])
+    if "blade_scene" in result:
+        _print_rows([result["blade_scene"]], [("scene", "blade scene"), ("frames", "frames"), ("elements", "tets"),
+                                              ("cut_events", "cut events"), ("step_ms_mean", "step ms"),
+                                              ("cut_event_ms_mean", "cut event ms"), ("cg_iterations", "iterations"),
+                                              ("real_time_factor", "real-time factor")])
     if json_path is not None:
         with atomic_path(json_path) as tmp:
             Path(tmp).write_text(json.dumps(result, indent=2) + "\n")
