@@ -73,22 +73,16 @@ def rotate_into_factor(
     r: wp.array(dtype=wp.vec3),
     y: wp.array(dtype=wp.vec3),
     t: wp.array(dtype=wp.vec3),
-    t_patch: wp.array(dtype=wp.vec3),
 ):
     """``t[factor_rows[i, k]] += factor_weights[i, k] R_i^T u_i`` for the nodes outside the
-    patch, ``u = r - y`` with ``subtract`` (else ``r``; ``t`` zero before); without
-    ``subtract``, also ``t_patch[patch_position[i]] = R_i^T r_i`` for the nodes of the patch."""
+    patch (``t`` zero before), ``u = r - y`` with ``subtract``, else ``r``."""
     lo, hi = thread_range(wp.tid(), chunk, r.shape[0])
     for i in range(lo, hi):
-        p = patch_position[i]
-        ri = r[i]
-        if subtract != 0:
-            ri = ri - y[i]
-        u = wp.quat_rotate_inv(node_rotation[i], ri)
-        if p >= 0:
-            if subtract == 0:
-                t_patch[p] = u
-        else:
+        if patch_position[i] < 0:
+            ri = r[i]
+            if subtract != 0:
+                ri = ri - y[i]
+            u = wp.quat_rotate_inv(node_rotation[i], ri)
             for k in range(2):
                 row = factor_rows[i, k]
                 if row >= 0:

@@ -517,14 +517,11 @@ class RotatedCholesky:
         positions = np.full(m.particle_count, -1, dtype=np.int32)
         self._patch = None
         if len(outside):
-            nodes = outside
-            patch = factor(rest_system_matrix(RestData.of(m), *self._factored_for, nodes=nodes)[0], split=False)
-            positions[nodes[patch.order]] = np.arange(len(nodes), dtype=np.int32)
-            cells = m.tet_indices.numpy()
-            inside = np.zeros(m.particle_count, dtype=bool)
-            inside[nodes] = True
-            elements = np.flatnonzero(inside[cells].any(axis=1))
-            self._patch = (patch, _device_arrays(patch, d), wp.array(nodes[patch.order].astype(np.int32), device=d),
+            patch = factor(rest_system_matrix(RestData.of(m), *self._factored_for, nodes=outside)[0], split=False)
+            nodes = outside[patch.order]  # (in the patch's order)
+            positions[nodes] = np.arange(len(nodes), dtype=np.int32)
+            elements = np.flatnonzero((positions[m.tet_indices.numpy()] >= 0).any(axis=1))  # those around them
+            self._patch = (patch, _device_arrays(patch, d), wp.array(nodes.astype(np.int32), device=d),
                            wp.array(elements.astype(np.int32), device=d))
         self.patch_position.assign(positions)
         self._generation += 1
@@ -649,7 +646,7 @@ class RotatedCholesky:
             _MemsetLaunch(t),
             wp.launch(cholesky.rotate_into_factor, node_threads, device=d, record_cmd=True,
                       inputs=[chunk, int(self._patch is not None), self.factor_rows, self.factor_weights,
-                              self.patch_position, self.node_rotation, r, y], outputs=[t, patch_t]),
+                              self.patch_position, self.node_rotation, r, y], outputs=[t]),
             *solves,
             wp.launch(cholesky.rotate_from_factor, node_threads, device=d, record_cmd=True,
                       inputs=[chunk, counter, int(m.tet_order == 2), self.factor_rows, self.factor_weights,
