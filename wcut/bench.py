@@ -76,6 +76,8 @@ def bench_ar_loop(frames: int, scene=AR_SCENE) -> dict:
             "features": m["features"], "pairs": m["pairs_initial"], "fps_mean": round(m["fps_mean"], 1),
             "frame_ms_mean": round(m["frame_ms_mean"], 2), "detection_ms_mean": round(m["detection_ms_mean"], 4),
             "cuts_detected": m["cuts_detected"], "dice_final": round(m["dice_final"], 4)}
+
+
 def bench_blade_scene(frames: int, scene=BLADE_SCENE) -> dict:
     """``frames`` frames of ``scene`` (steps and the blade's cut events, as ``wcut run`` runs
     them, without writing USD): the mean step and cut event, the conjugate-gradient iterations

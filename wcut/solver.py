@@ -250,9 +250,8 @@ class SolverCorotational:
         """A solver with this one's settings for ``model``, which ``change`` (a
         :class:`wcut.topology.TopologyChange`) made from this solver's model
         (:meth:`wcut.model.Model.rebuild`). The preconditioner's factor is carried over (the
-        vertices the change touched and their neighbours get a patch until a new factor,
-        computed in the background, is taken; ``wcut.preconditioner``); this solver must not
-        step again."""
+        vertices the change touched get a patch until a new factor, computed in the
+        background, is taken; ``wcut.preconditioner``); this solver must not step again."""
         carried = None if self.preconditioner is None else self.preconditioner.carried(model, change)
         solver = SolverCorotational(model, **self._settings, _carried=carried)
         solver.step_count, solver.elapsed, solver._start_speed = self.step_count, self.elapsed, self._start_speed
