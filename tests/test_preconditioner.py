@@ -186,12 +186,12 @@ def _factor_inverse(F: pc.BlockFactor):
 
 def test_the_nodes_a_cut_touched_get_a_patch_combined_with_the_factor_of_before(monkeypatch):
     """Until the refresh, the patch serves the nodes outside the factor of before, combined with
-    that factor multiplicatively: ``z1 = B_S r``, ``z2 = z1 + B_F (r -
-    A z1)``, ``z = z2 + B_S (r - A z2)`` (B_S the inverse of the new rest matrix on the patch,
-    B_F the factor of before on the other nodes, A the system matrix). So the patch's rows of
-    ``A z`` are those of r, and the preconditioner is symmetric and positive definite."""
+    that factor multiplicatively: ``z1 = B_S r``, ``z2 = z1 + B_F (r - A z1)``, ``z = z2 +
+    B_S (r - A z2)`` (B_S the inverse of the new rest matrix on the patch, B_F the factor of
+    before on the other nodes, A the system matrix). So the patch's rows of ``A z`` are those
+    of r, and the preconditioner is symmetric and positive definite."""
     monkeypatch.setattr(pc, "REFRESH_SECONDS_PER_BLOCK", 1.0)  # the refresh due a long way off
-    model, _, solver, change = _cut_beam(True, cells=(12, 2, 2))
+    model, _, solver, _ = _cut_beam(True, cells=(12, 2, 2))
     rest, scratch = model.state(), model.state()
     solver.step(rest, scratch, None, DT)  # makes the patch; the element pass at rest: A is the rest matrix
     P = solver.preconditioner
