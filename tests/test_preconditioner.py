@@ -150,7 +150,7 @@ def test_the_factor_is_refreshed_after_a_rebuild(background):
     model, state, solver, change = _cut_beam(background)
     P = solver.preconditioner
     touched = P.fallback_count
-    assert touched > 0  # the cut's vertices get Jacobi until the refresh
+    assert touched > 0  # the cut's vertices are outside the factor (the patch serves them) until the refresh
     assert P.refreshing
     scratch = model.state()
     steps = 0
