@@ -353,9 +353,7 @@ class SolverCorotational:
                                   inputs=[m.edge_indices, m.edge_weights, m.edge_stiffness, p, stiffness_scale],
                                   outputs=[q]))
         if m.attachment_count:
-            body.append(wp.launch(attachments.attachment_matvec, m.attachment_count, device=d, record_cmd=True,
-                                  inputs=[m.attachment_indices, m.attachment_weights, m.attachment_stiffness, p,
-                                          dt * dt], outputs=[q]))
+            body.append(self._record_attachment_matvec(p, q, dt))
         body.append(wp.launch(cg.cg_apply_mass, node_threads, device=d, record_cmd=True,
                               inputs=[chunk, counter, self.inv_diagonal, self.mass_scale, p],
                               outputs=[product_partials, q, pq]))
@@ -384,14 +382,19 @@ class SolverCorotational:
                 inputs=[elements, m.tet_indices, self.tet_rotated_gradients, self.tet_rotation_stiffness,
                         m.tet_stiffness, x, stiffness_scale], outputs=[y])]
             if m.attachment_count:
-                launches.append(wp.launch(attachments.attachment_matvec, m.attachment_count, device=d, record_cmd=True,
-                                          inputs=[m.attachment_indices, m.attachment_weights, m.attachment_stiffness,
-                                                  x, dt * dt], outputs=[y]))
+                launches.append(self._record_attachment_matvec(x, y, dt))
             launches.append(wp.launch(cg.listed_apply_mass, nodes.shape[0], device=d, record_cmd=True,
                                       inputs=[nodes, self.inv_diagonal, self.mass_scale, x], outputs=[y]))
             return launches
 
         return product
+
+    def _record_attachment_matvec(self, x, y, dt: float):
+        """The recorded attachment springs' product ``y += dt^2 K_attach x``."""
+        m = self.model
+        return wp.launch(attachments.attachment_matvec, m.attachment_count, device=m.device, record_cmd=True,
+                         inputs=[m.attachment_indices, m.attachment_weights, m.attachment_stiffness, x, dt * dt],
+                         outputs=[y])
 
     def _record_tet_matvec(self, stiffness_scale: float):
         """The recorded element product ``q += c_A K_t p`` of one CG iteration, split over
