@@ -78,8 +78,8 @@ def bench_ar_loop(frames: int, scene=AR_SCENE) -> dict:
             "cuts_detected": m["cuts_detected"], "dice_final": round(m["dice_final"], 4)}
 
 
-def bench_blade_scene(frames: int, scene=BLADE_SCENE) -> dict:
-    """``frames`` frames of ``scene`` (steps and the blade's cut events, as ``wcut run`` runs
+def bench_blade_scene(frames: int | None = None, scene=BLADE_SCENE) -> dict:
+    """``frames`` frames of ``scene`` (default: all of them; steps and the blade's cut events, as ``wcut run`` runs
     them, without writing USD): the mean step, the wall time of the blade's cuts (every frame
     of its path, those that changed nothing too), the cut events that changed the mesh, the
     conjugate-gradient iterations of the last step of each frame, summed, and the real-time
@@ -88,6 +88,7 @@ def bench_blade_scene(frames: int, scene=BLADE_SCENE) -> dict:
 
     loaded = load_scene(scene)
     sim = Simulation(loaded)
+    frames = loaded.frame_count if frames is None else frames
     iterations = 0
     for _ in range(frames):
         solver = sim.solver  # (a cut event replaces it after the frame's steps)
@@ -594,9 +595,7 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
     blade_frames = (30 if quick else None) if blade_frames is None else blade_frames
     if blade_frames != 0 and BLADE_SCENE.exists():
         say("blade scene ...")
-        from .scene import load_scene
-
-        result["blade_scene"] = bench_blade_scene(blade_frames or load_scene(BLADE_SCENE).frame_count)
+        result["blade_scene"] = bench_blade_scene(blade_frames)
     if cut_scenes:
         result["cut_event_size_ratio"] = round(cut_events[-1]["event_ms"] / cut_events[0]["event_ms"], 2)
         result["cut_methods"] = bench_cut_methods(*cut_scenes[0][1:])
