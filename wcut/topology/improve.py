@@ -243,10 +243,14 @@ class _Sines:
         self.known_sines: dict[int, float] = {}  # the sines alone, where volume_scale is given
 
     def __call__(self, t: int) -> float:
-        q = self.known.get(t)
+        return self._remembered(self.known, t, self.volume_scale)
+
+    def _remembered(self, known: dict[int, float], t: int, volume_scale: float | None) -> float:
+        """Element t's :func:`min_sine` with ``volume_scale``, from ``known`` or computed there."""
+        q = known.get(t)
         if q is None:
             rest = self.topo.rest_tuples
-            q = self.known[t] = min_sine(*[rest[v] for v in self.topo.tets[t].tolist()], self.volume_scale)
+            q = known[t] = min_sine(*[rest[v] for v in self.topo.tets[t].tolist()], volume_scale)
         return q
 
     def prime(self, slots) -> np.ndarray:
@@ -267,14 +271,7 @@ class _Sines:
         theirs, or ``goal`` where theirs is above."""
         if self.volume_scale is None:
             return -math.inf
-        known, rest = self.known_sines, self.topo.rest_tuples
-        least = self.goal
-        for t in slots:
-            q = known.get(t)
-            if q is None:
-                q = known[t] = min_sine(*[rest[v] for v in self.topo.tets[t].tolist()])
-            least = min(least, q)
-        return least
+        return min([self.goal] + [self._remembered(self.known_sines, t, None) for t in slots])
 
 
 def _better(sine: _Sines, may_make=None):
