@@ -197,3 +197,25 @@ def mechanical_energy(model, state) -> float:
                                        model.edge_stiffness.numpy().astype(np.float64),
                                        model.edge_rest_curvature.numpy().astype(np.float64))
     return energy
+
+
+def assert_listed_product(kernel, model, terms, p: np.ndarray, whole: np.ndarray, seed: int) -> None:
+    """``kernel`` (a ``tet_matvec_listed``, scale 0.7) over a random third of the elements and
+    over the others adds up to ``whole`` (``tet_matvec``'s product at scale 0.7), and the first
+    list's product is nonzero only at the nodes of its elements. ``terms``: the element pass's
+    ``"gradients"`` and ``"tangent"``."""
+    import warp as wp
+
+    rng = np.random.default_rng(seed)
+    listed = np.sort(rng.choice(model.tet_count, model.tet_count // 3, replace=False)).astype(np.int32)
+    others = np.setdiff1d(np.arange(model.tet_count), listed).astype(np.int32)
+    parts = []
+    for elements in (listed, others):
+        y = wp.zeros(model.particle_count, dtype=wp.vec3)
+        wp.launch(kernel, len(elements),
+                  inputs=[wp.array(elements, dtype=wp.int32), model.tet_indices, terms["gradients"], terms["tangent"],
+                          model.tet_stiffness, wp.array(p, dtype=wp.vec3), 0.7], outputs=[y])
+        parts.append(y.numpy().astype(np.float64))
+    touched = np.unique(model.tet_indices.numpy()[listed])
+    assert np.abs(parts[0] + parts[1] - whole).max() < 1e-5 * np.abs(whole).max()
+    assert np.abs(np.delete(parts[0], touched, axis=0)).max() == 0.0 and np.abs(parts[0][touched]).max() > 0.0

@@ -7,6 +7,7 @@ import warp as wp
 from scipy.spatial.transform import Rotation
 
 import wcut
+from conftest import assert_listed_product
 from wcut.kernels import tet_p1
 from wcut.model import Model, lame_parameters
 from wcut.reference import ScipyCorotationalStep
@@ -230,16 +231,4 @@ def test_listed_product_is_the_product_of_the_listed_elements(cube_mesh):
     x = cube_mesh.vertices + 0.01 * rng.standard_normal(cube_mesh.vertices.shape)
     terms = element_terms(model, x, rotation_stiffness=True)
     p = rng.standard_normal((model.particle_count, 3))
-    listed = np.sort(rng.choice(model.tet_count, model.tet_count // 3, replace=False)).astype(np.int32)
-    rest = np.setdiff1d(np.arange(model.tet_count), listed).astype(np.int32)
-    parts = []
-    for elements in (listed, rest):
-        y = wp.zeros(model.particle_count, dtype=wp.vec3)
-        wp.launch(tet_p1.tet_matvec_listed, len(elements),
-                  inputs=[wp.array(elements, dtype=wp.int32), model.tet_indices, terms["gradients"], terms["tangent"],
-                          model.tet_stiffness, wp.array(p, dtype=wp.vec3), 0.7], outputs=[y])
-        parts.append(y.numpy().astype(np.float64))
-    whole = stiffness_product(model, terms, p, scale=0.7)
-    touched = np.unique(model.tet_indices.numpy()[listed])
-    assert np.abs(parts[0] + parts[1] - whole).max() < 1e-5 * np.abs(whole).max()
-    assert np.abs(np.delete(parts[0], touched, axis=0)).max() == 0.0 and np.abs(parts[0][touched]).max() > 0.0
+    assert_listed_product(tet_p1.tet_matvec_listed, model, terms, p, stiffness_product(model, terms, p, scale=0.7), 3)
