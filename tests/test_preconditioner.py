@@ -128,16 +128,24 @@ def test_a_solid_gets_the_factor_and_a_shell_jacobi_by_default():
         SolverCorotational(model, preconditioner="ilu")
 
 
+def _step(solver, state, count: int) -> tuple[list[int], object]:
+    """``count`` steps of ``DT`` from ``state``: the CG iterations of each, and the last state."""
+    scratch = solver.model.state()
+    iterations = []
+    for _ in range(count):
+        solver.step(state, scratch, None, DT)
+        state, scratch = scratch, state
+        iterations.append(solver.last_cg_iterations)
+    return iterations, state
+
+
 def _cut_beam(background, cells=(4, 2, 2)):
     """A clamped beam bent a few steps, then cut through by a plane near x = 0.1 m: the model,
     state and solver carried over (``SolverCorotational.rebuilt``)."""
     mesh, fixed, model = _beam_model(cells)
     solver = SolverCorotational(model, cg_tolerance=1e-6)
     solver.preconditioner.background = background
-    state, scratch = model.state(), model.state()
-    for _ in range(3):
-        solver.step(state, scratch, None, DT)
-        state, scratch = scratch, state
+    _, state = _step(solver, model.state(), 3)
     topo = TetTopology(mesh)
     change = Cutter(topo).cut(Plane([0.1037, 0.0, 0.0], [1.0, 0.1, 0.05])).change
     new_mesh = topo.to_mesh()
@@ -314,12 +322,7 @@ def test_the_patch_cuts_the_iterations_after_a_cut(monkeypatch):
         monkeypatch.setattr(pc, "REFRESH_SECONDS_PER_BLOCK", 0.0 if case == "refreshed" else 1.0)
         model, state, solver, _ = _cut_beam(case != "refreshed", cells=(12, 2, 2))
         solver.cg_tolerance = 1e-4
-        scratch = model.state()
-        counts[case] = []
-        for _ in range(4):
-            solver.step(state, scratch, None, DT)
-            state, scratch = scratch, state
-            counts[case].append(solver.last_cg_iterations)
+        counts[case], _ = _step(solver, state, 4)
         assert solver.preconditioner.refreshing == (case != "refreshed")
     assert all(p <= r + 2 for p, r in zip(counts["patched"], counts["refreshed"])), counts
     assert sum(counts["patched"]) < 0.2 * sum(counts["jacobi"]), counts
@@ -450,19 +453,12 @@ def test_a_quadratic_model_after_a_cut_gets_the_patch_too(monkeypatch):
         model = Model(mesh, youngs_modulus=2e5, poisson_ratio=0.4, fixed=fixed)
         solver = SolverCorotational(model, cg_tolerance=1e-4)
         solver.preconditioner.background = case == "patched"
-        state, scratch = model.state(), model.state()
-        for _ in range(3):
-            solver.step(state, scratch, None, DT)
-            state, scratch = scratch, state
+        _, state = _step(solver, model.state(), 3)
         cutter = QuadraticCutter(mesh, "paulus", 0.1)
         change = cutter.cut(Plane([0.1037, 0.0, 0.0], [1.0, 0.1, 0.05])).change
         model, state = model.rebuild(cutter.mesh, change, state)
-        solver, scratch = solver.rebuilt(model, change), model.state()
-        counts[case] = []
-        for _ in range(4):
-            solver.step(state, scratch, None, DT)
-            state, scratch = scratch, state
-            counts[case].append(solver.last_cg_iterations)
+        solver = solver.rebuilt(model, change)
+        counts[case], state = _step(solver, state, 4)
         assert (solver.preconditioner.patch_count > 0) == (case == "patched")
         assert np.isfinite(state.particle_q.numpy()).all()
     assert all(p <= r + 3 for p, r in zip(counts["patched"], counts["refreshed"])), counts
