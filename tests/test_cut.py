@@ -233,6 +233,48 @@ def _barycentric(mesh, points: np.ndarray) -> np.ndarray:
     return np.concatenate([1.0 - local.sum(axis=2, keepdims=True), local], axis=2)
 
 
+def _deepest(corners: np.ndarray, segment: np.ndarray) -> float:
+    """The largest, over the points of ``segment`` (2, 3), of their smallest barycentric
+    coordinate in the element ``corners`` (4, 3): the smallest coordinate is concave and
+    piecewise linear along the segment, so its maximum is at an end or where two coordinates
+    are equal."""
+    inverse = np.linalg.inv((corners[1:] - corners[0]).T)
+    start, end = (np.r_[1.0 - (inverse @ (p - corners[0])).sum(), inverse @ (p - corners[0])] for p in segment)
+    rate = end - start
+    s = [0.0, 1.0] + [(start[j] - start[i]) / (rate[i] - rate[j]) for i in range(4) for j in range(i)
+                      if rate[i] != rate[j]]
+    return max(float((start + t * rate).min()) for t in s if 0.0 <= t <= 1.0)
+
+
+def test_the_elements_a_blade_s_edges_meet_are_those_every_pair_s_clip_finds():
+    """``Cutter._crossed_by`` (compiled, a BVH of the segments) finds the elements that a segment
+    meets, up to the on-surface tolerance, as the largest smallest barycentric coordinate along
+    each segment says, pair by pair: segments inside one element, through several, along
+    faces, and just off the mesh."""
+    mesh = perturbed(beam(3, 3, 3, size=(1.0, 1.0, 1.0), tets_per_hex=6), 0.2, seed=4)
+    cutter = Cutter(TetTopology(mesh))
+    rng = np.random.default_rng(8)
+    starts = rng.uniform(-0.1, 1.1, (40, 3))
+    ends = np.concatenate([starts[:10] + rng.normal(0.0, 0.02, (10, 3)),  # short: in one element, or none
+                           starts[10:30] + rng.normal(0.0, 0.4, (20, 3)),  # through several
+                           mesh.vertices[mesh.tets[:10, 0]]])  # to a vertex
+    ends[30:] = mesh.vertices[mesh.tets[:10, 1]]
+    starts[30:] = mesh.vertices[mesh.tets[:10, 0]] + 0.5 * cutter.tolerance  # along an edge, just off it
+    segments = np.stack([starts, ends], axis=1)
+    slots = np.arange(mesh.tet_count)
+    corners = mesh.vertices[mesh.tets]
+    slack = cutter.tolerance / np.linalg.norm(corners.max(axis=1) - corners.min(axis=1), axis=1)
+    depth = np.array([[_deepest(c, seg) for seg in segments] for c in corners]) + slack[:, None]
+    clear = np.abs(depth) > 1e-12  # (no pair within rounding of the bound)
+    assert clear.all(axis=1).sum() > 0.95 * mesh.tet_count
+    expected = (depth >= 0.0).any(axis=1)
+    found = cutter._crossed_by(slots, segments)
+    decided = clear.all(axis=1) | (depth > 1e-12).any(axis=1)
+    np.testing.assert_array_equal(found[decided], expected[decided])
+    assert 20 < expected.sum() < mesh.tet_count
+    assert not cutter._crossed_by(slots, segments[:0]).any() and len(cutter._crossed_by(slots[:0], segments)) == 0
+
+
 @pytest.mark.parametrize("method, epsilon", [("paulus", 0.0), ("paulus", 0.2), ("bielser", 0.0)])
 def test_progressive_cut_waits_for_the_blade_to_pass(method, epsilon):
     """A blade going down through a beam, one increment at a time: an element is cut only once

@@ -298,16 +298,18 @@ def test_distance_matches_brute_force_reference():
     np.testing.assert_allclose(limited[expected <= 0.2], expected[expected <= 0.2], atol=1e-14)
 
 
-def test_a_limited_distance_is_the_nearest_search_s_distance_bit_for_bit():
-    """``distance`` with a finite limit measures the pairs within it instead of searching for an
-    upper bound first: the same distances, to the bit, near, on and far from the surface."""
+def test_a_limited_distance_is_the_nearest_search_s_distance():
+    """``distance`` with a finite limit (compiled, the triangles whose boxes come within it)
+    gives the nearest search's distances up to rounding, near, on and far from the surface,
+    and inf beyond the limit."""
     rng = np.random.default_rng(12)
     grid = bumpy_grid(6, seed=2)
     points = np.concatenate([rng.uniform(-0.5, 1.5, (400, 3)), grid.vertices[:20],
                              grid.vertices[:20] + rng.normal(0.0, 1e-4, (20, 3))])
     for limit in (1e-6, 1e-3, 0.05, 0.3):
-        limited = grid.distance(points, limit)
-        np.testing.assert_array_equal(limited, grid.nearest(points, limit)[0])
+        limited, searched = grid.distance(points, limit), grid.nearest(points, limit)[0]
+        np.testing.assert_array_equal(np.isinf(limited), np.isinf(searched))
+        np.testing.assert_allclose(limited, searched, rtol=0.0, atol=1e-15)
         assert np.isfinite(limited).any() and np.isinf(limited).any()
 
 

@@ -37,9 +37,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
+import warp as wp
 
 from ..errors import WcutError
+from ..kernels import surface_query
 from ..kernels import topology as kernels
 from ..mesh import TET_FACES, dihedral_angles, tet_volumes
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
@@ -49,10 +50,9 @@ from ..topology.improve import MIN_VOLUME_FRACTION as IMPROVE_MIN_VOLUME_FRACTIO
 from ..topology.improve import TARGET_ANGLE as IMPROVE_TARGET
 from ..topology.improve import has_poor
 from ..topology.improve import improve as improve_mesh
-from ..topology.mesh import ball_pairs
 from ..topology.region import OUTSIDE, TetRegion
 from .separation import IN_PLANE, element_sides
-from .surface import CutSurface, Plane, TriangleSurface
+from .surface import CutSurface, Plane, TriangleSurface, box_tree
 
 METHODS = ("paulus", "bielser", "snap", "delete")
 
@@ -424,41 +424,19 @@ class Cutter:
 
     def _crossed_by(self, slots: np.ndarray, segments: np.ndarray) -> np.ndarray:
         """(M,) whether any of ``segments`` (B, 2, 3) (m) meets element ``slots[i]``, up to the
-        on-surface tolerance (Cyrus-Beck clipping in barycentric coordinates)."""
-        crossed = np.zeros(len(slots), dtype=bool)
+        on-surface tolerance (Cyrus-Beck clipping in barycentric coordinates, compiled:
+        :func:`wcut.kernels.surface_query.elements_met`, with a BVH of the segments)."""
         if not len(slots) or not len(segments):
-            return crossed
-        corners = self.coordinates()[self.topology.tets[slots]]  # (M, 4, 3)
-        lower, upper = corners.min(axis=1), corners.max(axis=1)
-        seg_lo, seg_hi = segments.min(axis=1), segments.max(axis=1)
-        # the pairs whose boxes meet, among those whose box centres are near enough (a k-d tree:
-        # testing all M x B pairs took 13-20 ms per increment on the organ, M ~2800, B ~80)
-        centre, half = 0.5 * (upper + lower), 0.5 * np.linalg.norm(upper - lower, axis=1)
-        seg_centre, seg_half = 0.5 * (seg_hi + seg_lo), 0.5 * np.linalg.norm(seg_hi - seg_lo, axis=1)
-        near = cKDTree(centre).query_ball_point(seg_centre, seg_half + half.max() + 2.0 * self.tolerance)
-        b, m = ball_pairs(near)
-        meets = np.all((seg_lo[b] <= upper[m] + self.tolerance) & (seg_hi[b] >= lower[m] - self.tolerance), axis=1)
-        m, b = m[meets], b[meets]
-        if not len(m):
-            return crossed
-        used, at = np.unique(m, return_inverse=True)
-        inverse = np.linalg.inv(np.transpose(corners[used, 1:] - corners[used, :1], (0, 2, 1)))
-
-        def bary(points):
-            local = np.einsum("kij,kj->ki", inverse[at], points - corners[m, 0])
-            return np.concatenate([1.0 - local.sum(axis=1, keepdims=True), local], axis=1)
-
-        start, end = bary(segments[b, 0]), bary(segments[b, 1])
-        slack = self.tolerance / np.linalg.norm(upper - lower, axis=1)[m, None]  # relative
-        rate = end - start
-        with np.errstate(divide="ignore", invalid="ignore"):
-            bound = -(start + slack) / rate  # where each coordinate reaches -slack
-        enter = np.where(rate > 0, bound, -np.inf).max(axis=1)
-        leave = np.where(rate < 0, bound, np.inf).min(axis=1)
-        blocked = ((rate == 0) & (start < -slack)).any(axis=1)
-        meets = ~blocked & (np.maximum(enter, 0.0) <= np.minimum(leave, 1.0))
-        crossed[m[meets]] = True
-        return crossed
+            return np.zeros(len(slots), dtype=bool)
+        bvh = box_tree(segments.min(axis=1), segments.max(axis=1))
+        met = wp.empty(len(slots), dtype=wp.int32, device="cpu")
+        wp.launch(surface_query.elements_met, len(slots), device="cpu",
+                  inputs=[bvh.id, wp.array(segments[:, 0], dtype=wp.vec3d, device="cpu"),
+                          wp.array(segments[:, 1], dtype=wp.vec3d, device="cpu"),
+                          wp.array(self.topology.tets[slots].astype(np.int32), dtype=wp.vec4i, device="cpu"),
+                          wp.array(self.coordinates(), dtype=wp.vec3d, device="cpu"), self.tolerance],
+                  outputs=[met])
+        return met.numpy().astype(bool)
 
     def sample(self, surface: CutSurface, slots) -> _Sampling:
         """Crossings of ``surface`` with the edges of elements ``slots``."""
@@ -1313,7 +1291,10 @@ def _mean(points: list[list[float]]) -> list[float]:
 def _surface_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(E, 2) sorted vertex pairs of the edges of a triangulated surface, and (E,) the number
     of its triangles on each."""
-    return np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0, return_counts=True)
+    pairs = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    n = np.int64(pairs.max(initial=0)) + 1
+    keys, counts = np.unique(pairs[:, 0] * n + pairs[:, 1], return_counts=True)  # (7x faster than np.unique(axis=0))
+    return np.stack([keys // n, keys % n], axis=1), counts
 
 
 def _boundary_edges(triangles: np.ndarray) -> np.ndarray:
