@@ -44,12 +44,13 @@ from ..kernels import surface_query
 from ..kernels import topology as kernels
 from ..mesh import TET_FACES, dihedral_angles, tet_volumes
 from ..topology import (TetTopology, TopologyChange, TopologyError, bisect_edge, duplicate_vertex, face_key,
-                        flip23, move_vertex, remove_edge, sew_unopened, split_face, split_tet, tet_qualities,
+                        flip23, remove_edge, sew_unopened, split_face, split_tet, tet_qualities,
                         unsew_face)
 from ..topology.improve import MIN_VOLUME_FRACTION as IMPROVE_MIN_VOLUME_FRACTION
 from ..topology.improve import TARGET_ANGLE as IMPROVE_TARGET
 from ..topology.improve import has_poor
 from ..topology.improve import improve as improve_mesh
+from ..topology.operators import check_vertex_move
 from ..topology.region import OUTSIDE, TetRegion
 from .separation import IN_PLANE, element_sides
 from .surface import CutSurface, Plane, TriangleSurface, box_tree
@@ -506,15 +507,16 @@ class Cutter:
                 continue
             if self.curved_boundary and self.topology.is_boundary_vertex(v):
                 continue  # it would leave the curved surface
-            if not self._move_keeps_quality(v, other, s):
-                stats.refused.append(f"snapping vertex {v} would make a sliver")
-                continue
             try:
-                move_vertex(self.topology, v, [v, other], [1.0 - s, s],
-                            feature_angle=0.0 if v in self.wound_vertices else self.boundary_slide)
+                weights = check_vertex_move(self.topology, v, [v, other], [1.0 - s, s],
+                                            feature_angle=0.0 if v in self.wound_vertices else self.boundary_slide)
             except TopologyError as exc:
                 stats.refused.append(str(exc))
                 continue
+            if not self._move_keeps_quality(v, other, s):
+                stats.refused.append(f"snapping vertex {v} would make a sliver")
+                continue
+            self.topology.set_vertex(v, [v, other], weights)
             snapped.add(v)
         stats.snapped_vertices += len(snapped)
         return snapped

@@ -530,14 +530,14 @@ def check_vertex_move(topo: TetTopology, v: int, parents, weights, *, feature_an
     both first)."""
     weights = _weights(weights, len(parents), f"moving vertex {v}")
     target = _point(topo, parents, weights)
-    around = sorted(topo.vertex_tets[v])
-    _check(topo, [_substitute(topo.tet(t), v, -1) for t in around], f"moving vertex {v}", {-1: target})
-    normals = _boundary_normals(topo, v)
+    normals = _boundary_normals(topo, v)  # (first: the cheaper test, and most snaps on a curved boundary fail it)
     if _off_its_planes(normals, target - topo.vertex_data[v, REST]):
         along = len(parents) == 2 and v in parents and topo.is_boundary_edge(*parents)
         smooth = (normals @ normals.T).min() > np.cos(np.radians(feature_angle))
         if not (along and smooth and feature_angle > 0.0):
             raise TopologyError(f"moving boundary vertex {v} would take it off its boundary")
+    around = sorted(topo.vertex_tets[v])
+    _check(topo, [_substitute(topo.tet(t), v, -1) for t in around], f"moving vertex {v}", {-1: target})
     return weights
 
 
