@@ -21,10 +21,12 @@ from __future__ import annotations
 import numpy as np
 
 from .arrays import TetArrays, face_neighbors
-from .mesh import POSITION, REST, VELOCITY, TetTopology, face_key
+from .mesh import POSITION, REST, VELOCITY, TetTopology
 
 #: neighbour of a face whose element across is outside the region (``kernels.topology``)
 OUTSIDE = -2
+#: the corners of an element's face k: those other than corner k
+_OTHER_CORNERS = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
 
 
 class TetRegion:
@@ -43,12 +45,12 @@ class TetRegion:
         self.vertices = np.unique(tets)
         self.tets = np.searchsorted(self.vertices, tets).astype(np.int32)
         neighbors = face_neighbors(self.tets)
-        unsewn = topo.unsewn
-        for r, k in np.argwhere(neighbors < 0).tolist():
-            corners = tets[r].tolist()
-            face = corners[:k] + corners[k + 1:]
-            if topo.face_owner_count(*face) == 2 and not (unsewn and face_key(*face) in unsewn):
-                neighbors[r, k] = OUTSIDE
+        rows, ks = np.nonzero(neighbors < 0)  # the region's own boundary: the mesh's, or an element outside
+        faces = np.sort(tets[rows[:, None], _OTHER_CORNERS[ks]], axis=1).tolist()
+        stars, unsewn = topo.vertex_tets, topo.unsewn
+        shared = np.array([len(stars[a] & stars[b] & stars[c]) == 2 and (a, b, c) not in unsewn for a, b, c in faces],
+                          dtype=bool)
+        neighbors[rows[shared], ks[shared]] = OUTSIDE
         data = topo.vertex_data[self.vertices]
         self.arrays = TetArrays.from_arrays(self.tets, neighbors, self.slots, data[:, REST], data[:, POSITION],
                                             data[:, VELOCITY], spare=spare)
