@@ -7,7 +7,7 @@ from conftest import load_tool
 #: the modules that compile in seconds; tet_p1, tet_p2, tri_p2 and topology take 5-60 s each,
 #: so the test leaves them to the tool's full run (README)
 QUICK = ["attachments", "bending", "cg", "cholesky", "cut_detection", "implicit_euler", "partial_sums", "raycast",
-         "rotation", "surface_query"]
+         "point_location", "rotation", "surface_query"]
 
 
 def test_the_quick_kernel_modules_compile_for_sm_90(capsys):

@@ -967,6 +967,21 @@ def test_rest_points_inverts_an_affine_deformation_inside_and_outside(name):
     assert topo.rest_points(inside[0] @ POS_MAP.T + POS_SHIFT).shape == (1, 3)  # one point (3,) -> (1, 3)
 
 
+def test_rest_points_launches_again_when_more_elements_hold_a_point_than_it_made_room_for(monkeypatch):
+    """A vertex lies in every element of its star: with room for one element per point, the
+    location runs again with room for all, and maps the points as it does with room to spare."""
+    import wcut.topology.mesh as mesh_module
+
+    mesh = MESHES[BEAMS[0]]()
+    topo = TetTopology(mesh, positions=_bend(mesh.vertices))
+    n = topo.vertex_count
+    points = np.concatenate([topo.positions, topo.positions[:5] + 1.0])  # vertices, and outside
+    expected = topo.rest_points(points)
+    monkeypatch.setattr(mesh_module, "HITS_PER_POINT", 1)
+    np.testing.assert_array_equal(topo.rest_points(points), expected)
+    np.testing.assert_allclose(expected[:n], topo.rest_positions, rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("name", BEAMS)
 def test_rest_points_keeps_barycentric_coordinates_under_a_nonlinear_deformation(name):
     """Under a bending the map is affine per element only: a point at a vertex goes to the rest
