@@ -27,8 +27,9 @@ def element_sphere(c0: wp.vec3d, c1: wp.vec3d, c2: wp.vec3d, c3: wp.vec3d):
 
 @wp.kernel
 def locate_points(tets: wp.array(dtype=wp.vec4i), x: wp.array(dtype=wp.vec3d), points: wp.array(dtype=wp.vec3d),
-                  nearest_sq: wp.array(dtype=wp.float64), hit_count: wp.array(dtype=wp.int32), hit_point: wp.array(dtype=wp.int32),
-                  hit_element: wp.array(dtype=wp.int32), hit_weights: wp.array(dtype=wp.vec4d)):
+                  nearest_sq: wp.array(dtype=wp.float64), hit_count: wp.array(dtype=wp.int32),
+                  hit_point: wp.array(dtype=wp.int32), hit_element: wp.array(dtype=wp.int32),
+                  hit_weights: wp.array(dtype=wp.vec4d)):
     """For element i (corners ``x[tets[i]]``): lowers ``nearest_sq[j]`` to the squared distance
     (m^2) of point j to its centre, and appends (point, element, barycentric weights) for every
     point inside it (weights at least ``-INSIDE_TOL``) to the hit lists, counted in
