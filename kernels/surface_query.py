@@ -158,3 +158,40 @@ def elements_met(bvh: wp.uint64, segment_a: wp.array(dtype=wp.vec3d), segment_b:
             found = 1
             break
     met[i] = found
+
+
+@wp.kernel
+def nearest_triangles(bvh: wp.uint64, corners: wp.array(dtype=wp.vec3d), normals: wp.array(dtype=wp.vec3d),
+                      lower: wp.vec3d, upper: wp.vec3d, p: wp.array(dtype=wp.vec3d), start: wp.float64,
+                      limit: wp.float64, distance_out: wp.array(dtype=wp.float64),
+                      triangle_out: wp.array(dtype=wp.int32)):
+    """Per point, the nearest triangle (of equal distances, the smallest index) and its distance
+    (m), or -1 and inf where none lies within ``limit`` (m). The triangles within a radius of
+    the point are measured, the radius growing fourfold from ``start`` (m) until the nearest of
+    them lies within it: it is then the nearest of all. ``lower``-``upper`` is the surface's
+    box (m): a radius reaching its far corner holds every triangle."""
+    i = wp.tid()
+    x = p[i]
+    outside = wp.max(wp.max(lower - x, x - upper), wp.vec3d(wp.float64(0.0)))
+    every = wp.length(outside) + wp.length(upper - lower)
+    radius = start
+    best = wp.float64(wp.inf)
+    best_j = int(-1)
+    while True:
+        reach = wp.min(wp.min(radius, limit), every)
+        lo, hi = query_box(x, x, reach)
+        query = wp.bvh_query_aabb(bvh, lo, hi)
+        j = int(0)
+        while wp.bvh_query_next(query, j):
+            d = point_triangle_distance(x, corners[3 * j], corners[3 * j + 1], corners[3 * j + 2], normals[j])
+            if d < best or (d == best and j < best_j):
+                best = d
+                best_j = j
+        if best <= reach or reach >= limit or reach >= every:
+            break
+        radius = radius * wp.float64(4.0)
+    if best > limit:
+        best = wp.float64(wp.inf)
+        best_j = -1
+    distance_out[i] = best
+    triangle_out[i] = wp.int32(best_j)

@@ -399,22 +399,27 @@ class TriangleSurface(CutSurface):
     def nearest(self, points, limit: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
         """Distance (M,) (m) from each point (M, 3) to the surface and the nearest triangle (M,).
 
-        Exact: the triangle of the nearest piece centre gives an upper bound u; every triangle
-        with a piece centre within min(u, limit) + reach is then measured. Points farther than
-        ``limit`` (m) get distance inf and triangle -1. The cost grows with min(distance, limit)
-        (steeply for dense slivers), so pass a limit when only near points matter.
+        Exact (of equal distances, the lowest triangle index): compiled
+        (:func:`wcut.kernels.surface_query.nearest_triangles`), the triangles within a radius of
+        the point measured, the radius growing from the typical triangle size until the
+        nearest of them lies within it. Points farther than ``limit`` (m) get distance inf and
+        triangle -1. The cost grows with min(distance, limit), so pass a limit when only near
+        points matter.
         """
         p = _array(points, (-1, 3), "points")
         dist, idx = np.full(len(p), np.inf), np.full(len(p), -1, dtype=np.int64)
         if len(p) == 0:
             return dist, idx
-        if len(p) * len(self) <= _ALL_PAIRS:  # few pairs: measuring them all costs less than the search
-            rows, j = np.divmod(np.arange(len(p) * len(self)), len(self))
-        else:
-            tree = self._pieces()
-            guess = self._piece_tri[tree.query(p)[1]]
-            upper = _point_triangle_distance(p, *self._v[guess].transpose(1, 0, 2), self.normals[guess])
-            rows, j = self._near_pairs(p, np.minimum(upper, limit))
+        if len(p) * len(self) > _ALL_PAIRS:  # (few pairs: measuring them all costs less than the search)
+            bvh, corners, normals, _ = self._compiled()
+            dist = wp.empty(len(p), dtype=wp.float64, device="cpu")
+            triangle = wp.empty(len(p), dtype=wp.int32, device="cpu")
+            wp.launch(surface_query.nearest_triangles, len(p), device="cpu",
+                      inputs=[bvh.id, corners, normals, *(wp.vec3d(*b) for b in self.bounds()),
+                              wp.array(p, dtype=wp.vec3d, device="cpu"), float(np.sqrt(0.5 * self._area2.mean())),
+                              float(limit)], outputs=[dist, triangle])
+            return dist.numpy(), triangle.numpy().astype(np.int64)
+        rows, j = np.divmod(np.arange(len(p) * len(self)), len(self))
         v = self._v[j]
         d = _point_triangle_distance(p[rows], v[:, 0], v[:, 1], v[:, 2], self.normals[j])
         order = np.lexsort((d, rows))
