@@ -356,22 +356,24 @@ def _subtree_split(row_start: np.ndarray, block_column: np.ndarray) -> tuple[int
 
 
 def _owners(model) -> np.ndarray:
-    """Per node, the index of the rotation it takes (-1: none): of its largest incident element
-    (P1: the element; P2: element * 4 + the Gauss point nearest the node)."""
-    owner = np.full(model.particle_count, -1, dtype=np.int32)
+    """Per node, the index of the rotation it takes (-1: none): of its largest incident element,
+    of equal ones the first (P1: the element; P2: element * 4 + the Gauss point nearest the
+    node)."""
     cells, size = model.tet_indices.numpy(), model.tet_rest_volume.numpy()
-    order = np.argsort(-size, kind="stable")
-    k = cells.shape[1]
-    nodes = cells[order].ravel()
-    slot = np.repeat(order, k)
+    m, k = cells.shape
+    nodes, element = cells.ravel(), np.repeat(np.arange(m), k)
+    code = element
     if model.tet_order == 2:
         from . import p2
 
         points = np.concatenate([np.arange(4), p2.EDGES[:, 0]])  # corners, then an edge's first corner
-        slot = slot * 4 + np.tile(points, len(order))
-    first_nodes, first = np.unique(nodes, return_index=True)
-    owner[first_nodes] = slot[first]
-    return owner
+        code = element * 4 + np.tile(points, m)
+    largest = np.full(model.particle_count, -np.inf, dtype=size.dtype)
+    np.maximum.at(largest, nodes, size[element])
+    top = size[element] == largest[nodes]
+    owner = np.full(model.particle_count, np.iinfo(np.int64).max)
+    np.minimum.at(owner, nodes[top], code[top])  # (a smaller element has the smaller code)
+    return np.where(largest > -np.inf, owner, -1).astype(np.int32)
 
 
 # -- the preconditioner ------------------------------------------------------------------------
