@@ -72,30 +72,42 @@ from .kernels import cholesky
 # -- the rest system matrix --------------------------------------------------------------------
 
 
-def _stiffness_blocks(nodes: np.ndarray, gradients: np.ndarray, coefficients: np.ndarray):
+def _stiffness_blocks(nodes: np.ndarray, gradients: np.ndarray, coefficients: np.ndarray,
+                      selected: np.ndarray | None = None):
     """Node pairs and 3x3 blocks of isotropic elastic stiffness at quadrature points.
 
     For point q with nodes ``n_a`` (Q, k), gradients ``g_a`` (Q, k, 3) in 1/m and
     ``coefficients (V mu, V lambda)`` (Q, 2) in N*m, the block of nodes (a, b) is
     ``V mu (g_a . g_b) I + V mu g_b g_a^T + V lambda g_a g_b^T`` (N/m; thesis eq. 3.48).
-    Returns rows (Q k k,), columns, blocks (Q k k, 3, 3)."""
+    Returns rows, columns and blocks (9, P) (component-major: numpy's loops over 3x3 blocks
+    cost 6x more) of the pairs in (q, a, b) order: all of them, or with ``selected`` (N,) bool
+    those whose two nodes are selected (a patch's few rows need a fraction of its elements'
+    blocks)."""
     Q, k = nodes.shape
-    vmu, vlam = coefficients[:, 0, None, None, None, None], coefficients[:, 1, None, None, None, None]
-    dots = np.einsum("qai,qbi->qab", gradients, gradients)[:, :, :, None, None]
-    outer = gradients[:, :, None, :, None] * gradients[:, None, :, None, :]  # [q, a, b] = g_a g_b^T
-    blocks = vmu * dots * np.eye(3) + vmu * np.swapaxes(outer, 3, 4) + vlam * outer
-    rows = np.repeat(nodes, k, axis=1).ravel()
-    cols = np.tile(nodes, (1, k)).ravel()
-    return rows, cols, blocks.reshape(-1, 3, 3)
+    if selected is None:
+        q, a, b = (i.ravel() for i in np.indices((Q, k, k)))
+    else:
+        inside = selected[nodes]
+        q, a, b = np.nonzero(inside[:, :, None] & inside[:, None, :])
+    ga, gb = np.ascontiguousarray(gradients[q, a].T), np.ascontiguousarray(gradients[q, b].T)  # (3, P)
+    vmu, vlam = coefficients[q, 0], coefficients[q, 1]
+    blocks = gb[:, None, :] * (vmu * ga)[None, :, :] + (vlam * ga)[:, None, :] * gb[None, :, :]  # [i, j] = ...
+    blocks[[0, 1, 2], [0, 1, 2]] += vmu * (ga * gb).sum(axis=0)
+    return nodes[q, a], nodes[q, b], blocks.reshape(9, -1)
 
 
 def _spring_blocks(indices: np.ndarray, weights: np.ndarray, stiffness: np.ndarray):
-    """Node pairs and blocks ``k w_a w_b I`` of springs on weighted points (attachments)."""
+    """Node pairs and blocks (9, P) ``k w_a w_b I`` of springs on weighted points (attachments)."""
     k = indices.shape[1]
     scalar = stiffness[:, None, None] * weights[:, :, None] * weights[:, None, :]
     rows = np.repeat(indices, k, axis=1).ravel()
     cols = np.tile(indices, (1, k)).ravel()
-    return rows, cols, scalar.reshape(-1)[:, None, None] * np.eye(3)
+    return rows, cols, _scalar_blocks(scalar.reshape(-1))
+
+
+def _scalar_blocks(values: np.ndarray) -> np.ndarray:
+    """Blocks ``v I`` (9, P) of scalars ``values`` (P,)."""
+    return np.eye(3).reshape(9, 1) * values[None, :]
 
 
 @dataclass
@@ -122,16 +134,17 @@ class RestData:
         return cls(model.particle_count, model.particle_fixed.numpy() != 0, f64(model.particle_mass), parts)
 
 
-def _element_blocks(part, chunk: int = 2048, fixed: np.ndarray | None = None):
-    """Yield (rows, cols, blocks) of the stiffness of one element family of :class:`RestData`.
-    With ``fixed`` (the fixed-node mask, N bool) a quadratic family's stiffness is
-    projected on the linear functions of its corners (:func:`coarse_system_matrix`): rows and
-    columns are corners, and a fixed node's value is 0."""
+def _element_blocks(part, chunk: int = 2048, fixed: np.ndarray | None = None, selected: np.ndarray | None = None):
+    """Yield (rows, cols, blocks) of the stiffness of one element family of :class:`RestData`:
+    with ``selected`` (N bool), only the blocks between selected nodes. With ``fixed`` (the
+    fixed-node mask, N bool) a quadratic family's stiffness is projected on the linear
+    functions of its corners (:func:`coarse_system_matrix`): rows and columns are corners,
+    and a fixed node's value is 0."""
     if part[0] == "tet" and part[1] == 1:
         _, _, tets, poses, stiffness = part
         grads = np.concatenate([poses, -poses.sum(axis=1, keepdims=True)], axis=1)  # rows grad N_0..3
         for s in range(0, len(tets), chunk):
-            yield _stiffness_blocks(tets[s:s + chunk], grads[s:s + chunk], stiffness[s:s + chunk])
+            yield _stiffness_blocks(tets[s:s + chunk], grads[s:s + chunk], stiffness[s:s + chunk], selected)
     elif part[0] == "tet":
         from . import p2
 
@@ -145,7 +158,7 @@ def _element_blocks(part, chunk: int = 2048, fixed: np.ndarray | None = None):
                 cells = cells[:, :4]
             m, k = cells.shape
             yield _stiffness_blocks(np.repeat(cells, 4, axis=0), grads.reshape(m * 4, k, 3),
-                                    stiffness[s:s + chunk].reshape(m * 4, 2))
+                                    stiffness[s:s + chunk].reshape(m * 4, 2), selected)
     else:
         raise ValueError(f"unknown part {part[0]!r}")
 
@@ -174,22 +187,21 @@ def rest_system_matrix(data: RestData, dt: float, rayleigh_mass: float, rayleigh
     parts = data.parts if nodes is None else [_touching(part, index >= 0) for part in data.parts]
     scale = dt * dt + dt * rayleigh_stiffness
     rows, cols = [free], [free]
-    blocks = [((1.0 + dt * rayleigh_mass) * data.mass[free])[:, None, None] * np.eye(3)]
+    blocks = [_scalar_blocks((1.0 + dt * rayleigh_mass) * data.mass[free])]
     for part in parts:
         pieces = _spring_blocks(*part[1:3], part[3] * dt * dt) if part[0] == "spring" else None
-        for r, c, b in [pieces] if pieces else _element_blocks(part):
+        for r, c, b in [pieces] if pieces else _element_blocks(part, selected=index >= 0):
             keep = (index[r] >= 0) & (index[c] >= 0)
             rows.append(r[keep]), cols.append(c[keep])
-            blocks.append(b[keep] if pieces else scale * b[keep])
-    return _block_matrix(index[np.concatenate(rows)], index[np.concatenate(cols)], np.concatenate(blocks),
+            blocks.append(b[:, keep] if pieces else scale * b[:, keep])
+    return _block_matrix(index[np.concatenate(rows)], index[np.concatenate(cols)], np.concatenate(blocks, axis=1),
                          len(free)), free
 
 
 def _block_matrix(rows: np.ndarray, cols: np.ndarray, blocks: np.ndarray, n: int) -> sp.bsr_matrix:
-    """The (3n, 3n) block-sparse sum of 3x3 ``blocks`` at block ``(rows, cols)``."""
-    blocks = blocks.reshape(-1, 9)
+    """The (3n, 3n) block-sparse sum of 3x3 ``blocks`` (9, P) at block ``(rows, cols)``."""
     unique, inverse = np.unique(rows * n + cols, return_inverse=True)
-    summed = np.stack([np.bincount(inverse, weights=blocks[:, c], minlength=len(unique)) for c in range(9)], axis=1)
+    summed = np.stack([np.bincount(inverse, weights=blocks[c], minlength=len(unique)) for c in range(9)], axis=1)
     block_rows, block_cols = unique // n, unique % n
     indptr = np.searchsorted(block_rows, np.arange(n + 1))
     return sp.bsr_matrix((summed.reshape(-1, 3, 3), block_cols, indptr), shape=(3 * n, 3 * n))
@@ -234,16 +246,16 @@ def coarse_system_matrix(data: RestData, dt: float, rayleigh_mass: float, raylei
         if part[0] == "spring":
             r, c, b = _spring_blocks(*part[1:3], part[3] * dt * dt)
             keep = (index[r] >= 0) & (index[c] >= 0)
-            scalar = scalar + sp.csr_matrix((b[keep, 0, 0], (index[r[keep]], index[c[keep]])), shape=scalar.shape)
+            scalar = scalar + sp.csr_matrix((b[0, keep], (index[r[keep]], index[c[keep]])), shape=scalar.shape)
             continue
         for r, c, b in _element_blocks(part, fixed=data.fixed):
             keep = (corner[r] >= 0) & (corner[c] >= 0)
             rows.append(corner[r[keep]]), cols.append(corner[c[keep]])
-            blocks.append((dt * dt + dt * rayleigh_stiffness) * b[keep])
+            blocks.append((dt * dt + dt * rayleigh_stiffness) * b[:, keep])
     projected = (Pi.T @ sp.csr_matrix(scalar) @ Pi).tocoo()
     rows.append(projected.row), cols.append(projected.col)
-    blocks.append(projected.data[:, None, None] * np.eye(3))
-    return _block_matrix(np.concatenate(rows), np.concatenate(cols), np.concatenate(blocks), Pi.shape[1]), Pi
+    blocks.append(_scalar_blocks(projected.data))
+    return _block_matrix(np.concatenate(rows), np.concatenate(cols), np.concatenate(blocks, axis=1), Pi.shape[1]), Pi
 
 
 # -- the factor --------------------------------------------------------------------------------
