@@ -208,6 +208,9 @@ class TetTopology:
         self.unsewn: set[tuple[int, int, int]] = set()
         self.name = mesh.name
         self._journal: _Journal | None = None
+        #: :meth:`boundary_faces_at` per vertex asked, until any vertex's star changes (the mesh
+        #: improvement asks for the same vertices over and over between two changes)
+        self._boundary_at: dict[int, list[tuple[int, int, int]]] = {}
 
     # ----------------------------------------------------------------- queries
     @property
@@ -395,6 +398,9 @@ class TetTopology:
         """The boundary faces through vertex v (unsewn faces are not counted), each ordered as
         its element's :data:`TET_FACES` order it (outward). Every element with a face through v
         is in v's star, so counting the faces there gives their owners: the cost of one star."""
+        faces = self._boundary_at.get(v)
+        if faces is not None:
+            return faces
         found: dict[tuple, tuple | None] = {}  # by the face's two other vertices, sorted
         tets = self.tets
         for t in self.vertex_tets[v]:
@@ -402,7 +408,8 @@ class TetTopology:
             for i, j, k, a, b in _FACES_THROUGH[tet.index(v)]:
                 key = (tet[a], tet[b]) if tet[a] < tet[b] else (tet[b], tet[a])
                 found[key] = None if key in found else (tet[i], tet[j], tet[k])
-        return [tri for tri in found.values() if tri is not None]
+        faces = self._boundary_at[v] = [tri for tri in found.values() if tri is not None]
+        return faces
 
     def is_boundary_vertex(self, v: int) -> bool:
         """Whether vertex v lies on a boundary face (unsewn faces are not counted)."""
@@ -549,6 +556,7 @@ class TetTopology:
         exactly as linking now would have left it; the vertex stars are up to date at once.
         Only while no face is unsewn (linking can then not change ``unsewn``).
         """
+        self._boundary_at.clear()  # (the stars change)
         journal = self._journal
         parents = parents or [removed[0]] * len(added)
         quality_of, alive, vertex_tets, tets = self._slot_quality, self.alive, self.vertex_tets, self.tets
@@ -727,6 +735,7 @@ class TetTopology:
         added (t last in the element list of each of its faces), which later operators'
         choices depend on. Its unsewn faces without ``old`` stay unsewn (unlinking alone
         would sew them again, joining the fans of their vertices across a cut)."""
+        self._boundary_at.clear()  # (the stars change)
         # The changes of unlinking then linking t, in the same order per set and list (set
         # iteration order, and so later choices, depend on it): t leaves and joins again the
         # sets of its vertices; t moves to the end of its faces without ``old``; its faces
@@ -759,6 +768,7 @@ class TetTopology:
         """Remove vertices no element uses (after elements were deleted) and renumber the
         rest, keeping their order. O(mesh size): for deletions, not for the cutter's
         remeshing, which never orphans a vertex. Returns how many were dropped."""
+        self._boundary_at.clear()  # (the stars change)
         keep = np.array([bool(s) for s in self.vertex_tets[: self.vertex_count]])
         dropped = int((~keep).sum())
         if not dropped:
@@ -828,6 +838,7 @@ class TetTopology:
     def _renumber(self, old: int, new: int) -> None:
         """Give vertex ``old`` (data, star, elements, faces) the number ``new``, whose vertex
         has no element (:meth:`drop_orphans`)."""
+        self._boundary_at.clear()  # (the stars change)
         self.vertex_data[new] = self.vertex_data[old]
         self.rest_tuples[new], self.rest_tuples32[new] = self.rest_tuples[old], self.rest_tuples32[old]
         star = self.vertex_tets[new] = self.vertex_tets[old]
