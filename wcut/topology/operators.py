@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from ..mesh import DEGENERATE_TOL
-from .mesh import (REST, TetTopology, TopologyError, rounded32, signed_volume, tet_quality,
+from .mesh import (REST, TetTopology, TopologyError, face_key, rounded32, signed_volume, tet_quality,
                    tet_quality_and_length)
 
 #: Up to this many elements :func:`tet_qualities` loops in plain floats: numpy's per-call
@@ -425,7 +425,7 @@ def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None) -> tupl
     if u < topo.first_new_vertex:  # the change record keeps every vertex of before
         raise TopologyError(f"contraction of edge ({u}, {w}): {u} was not made by the change being recorded "
                             f"(begin_change)")
-    if topo.unsewn and any(u in key for key in topo.unsewn):
+    if topo.unsewn and any(face_key(*[x for x in tet if x != y]) in topo.unsewn for tet in tets for y in tet if y != u):
         raise TopologyError(f"contraction of edge ({u}, {w}): a face on {u} is unsewn")
     added = [_substitute(tet, u, w) for tet in kept]
     if _off_its_planes(_boundary_normals(topo, u), topo.vertex_data[w, REST] - topo.vertex_data[u, REST]):
