@@ -320,7 +320,9 @@ def factor(A: sp.bsr_matrix, split: bool = True) -> BlockFactor:
     if not (np.all(np.isfinite(pivots)) and np.all(pivots > 0.0)):
         raise SimulationError("the rest system matrix is not positive definite")
     # lu.L is L (unit lower) of A_ordered[inv][:, inv]... with perm: rows/cols of A_ordered in perm order
-    L = (lu.L @ sp.diags(np.sqrt(pivots))).tocsr()
+    L = lu.L  # (CSC: its columns scaled in place of a product by a diagonal matrix, 3x faster)
+    L = sp.csc_matrix((L.data * np.repeat(np.sqrt(pivots), np.diff(L.indptr)), L.indices, L.indptr),
+                      shape=L.shape).tocsr()
     node_perm = perm[0::3] // 3
     Lb = sp.bsr_matrix(L, blocksize=(3, 3))
     Lb.sort_indices()
