@@ -52,7 +52,7 @@ combination) drops the coupling of the patch to the rest: on the organ midway th
 matrices, three right-hand sides, relative residual 1e-2), the sum needed 9-36 iterations,
 the multiplicative form 1-2; over the scene's run, 1624 iterations became 459. The sum needs
 the patch to hold the nodes' neighbours too; the product does not: with them, the run took
-438 iterations, but making a patch took twice as long (18.5 against 9.0 ms).
+438 iterations, but making a patch took twice as long.
 """
 
 from __future__ import annotations
