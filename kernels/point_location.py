@@ -16,6 +16,21 @@ INSIDE_TOL = wp.constant(wp.float64(1.0e-9))
 
 
 @wp.func
+def tet_corners(tets: wp.array(dtype=wp.vec4i), x: wp.array(dtype=wp.vec3d), i: int):
+    """The four corners (m) of element ``tets[i]``."""
+    tet = tets[i]
+    return x[tet[0]], x[tet[1]], x[tet[2]], x[tet[3]]
+
+
+@wp.func
+def barycentric(inverse: wp.mat33d, c0: wp.vec3d, p: wp.vec3d) -> wp.vec4d:
+    """The barycentric weights of ``p`` in the element with corner ``c0`` and ``inverse`` the
+    inverse of its edge matrix (columns c1 - c0, c2 - c0, c3 - c0)."""
+    local = inverse * (p - c0)
+    return wp.vec4d(wp.float64(1.0) - (local[0] + local[1] + local[2]), local[0], local[1], local[2])
+
+
+@wp.func
 def element_sphere(c0: wp.vec3d, c1: wp.vec3d, c2: wp.vec3d, c3: wp.vec3d):
     """The centre (m) and the squared radius (m^2, grown by a relative 1e-9) of the sphere
     about the element's corner mean that holds it."""
@@ -36,11 +51,7 @@ def locate_points(tets: wp.array(dtype=wp.vec4i), x: wp.array(dtype=wp.vec3d), p
     ``hit_count[0]`` (hits past their capacity are counted, not written). ``nearest_sq``
     starts at inf, ``hit_count`` at 0."""
     i = wp.tid()
-    tet = tets[i]
-    c0 = x[tet[0]]
-    c1 = x[tet[1]]
-    c2 = x[tet[2]]
-    c3 = x[tet[3]]
+    c0, c1, c2, c3 = tet_corners(tets, x, i)
     centre, radius_sq = element_sphere(c0, c1, c2, c3)
     inverse = wp.mat33d()
     solved = bool(False)
@@ -52,8 +63,7 @@ def locate_points(tets: wp.array(dtype=wp.vec4i), x: wp.array(dtype=wp.vec3d), p
             if not solved:
                 inverse = wp.inverse(wp.matrix_from_cols(c1 - c0, c2 - c0, c3 - c0))
                 solved = True
-            local = inverse * (p - c0)
-            weights = wp.vec4d(wp.float64(1.0) - (local[0] + local[1] + local[2]), local[0], local[1], local[2])
+            weights = barycentric(inverse, c0, p)
             if wp.min(wp.min(weights[0], weights[1]), wp.min(weights[2], weights[3])) >= -INSIDE_TOL:
                 k = wp.atomic_add(hit_count, 0, 1)
                 if k < hit_point.shape[0]:
@@ -68,8 +78,8 @@ def elements_near(tets: wp.array(dtype=wp.vec4i), x: wp.array(dtype=wp.vec3d), p
     """Whether element i may hold a point within ``reach[j]`` (m) of one of ``points``: the
     centre of its sphere lies within ``reach[j]`` plus the sphere's radius."""
     i = wp.tid()
-    tet = tets[i]
-    centre, radius_sq = element_sphere(x[tet[0]], x[tet[1]], x[tet[2]], x[tet[3]])
+    c0, c1, c2, c3 = tet_corners(tets, x, i)
+    centre, radius_sq = element_sphere(c0, c1, c2, c3)
     radius = wp.sqrt(radius_sq)
     found = int(0)
     for j in range(points.shape[0]):

@@ -10,6 +10,8 @@ coordinates, and every exact test here runs in float64. Triangle j is given by i
 
 import warp as wp
 
+from .point_location import barycentric, tet_corners
+
 #: the relative slack (float32 rounding) by which a query box is grown before it is compared
 #: with the float32 boxes of the triangles (themselves rounded outwards)
 BOX_SLACK = wp.constant(1.0e-6)
@@ -117,11 +119,7 @@ def elements_met(bvh: wp.uint64, segment_a: wp.array(dtype=wp.vec3d), segment_b:
     barycentric coordinates, each allowed down to ``-tol`` over the length of the element's
     box diagonal."""
     i = wp.tid()
-    tet = tets[i]
-    c0 = x[tet[0]]
-    c1 = x[tet[1]]
-    c2 = x[tet[2]]
-    c3 = x[tet[3]]
+    c0, c1, c2, c3 = tet_corners(tets, x, i)
     lower = wp.min(wp.min(c0, c1), wp.min(c2, c3))
     upper = wp.max(wp.max(c0, c1), wp.max(c2, c3))
     lo, hi = query_box(lower, upper, tol)
@@ -135,14 +133,14 @@ def elements_met(bvh: wp.uint64, segment_a: wp.array(dtype=wp.vec3d), segment_b:
     while wp.bvh_query_next(query, k):
         a = segment_a[k]
         b = segment_b[k]
-        if wp.min(a, b)[0] > upper[0] + tol or wp.min(a, b)[1] > upper[1] + tol or wp.min(a, b)[2] > upper[2] + tol:
+        near = wp.min(a, b)
+        far = wp.max(a, b)
+        if near[0] > upper[0] + tol or near[1] > upper[1] + tol or near[2] > upper[2] + tol:
             continue
-        if wp.max(a, b)[0] < lower[0] - tol or wp.max(a, b)[1] < lower[1] - tol or wp.max(a, b)[2] < lower[2] - tol:
+        if far[0] < lower[0] - tol or far[1] < lower[1] - tol or far[2] < lower[2] - tol:
             continue
-        la = inverse * (a - c0)
-        lb = inverse * (b - c0)
-        start = wp.vec4d(one - (la[0] + la[1] + la[2]), la[0], la[1], la[2])
-        end = wp.vec4d(one - (lb[0] + lb[1] + lb[2]), lb[0], lb[1], lb[2])
+        start = barycentric(inverse, c0, a)
+        end = barycentric(inverse, c0, b)
         enter = zero
         leave = one
         blocked = bool(False)
