@@ -91,7 +91,8 @@ def _stiffness_blocks(nodes: np.ndarray, gradients: np.ndarray, coefficients: np
         q, a, b = np.nonzero(inside[:, :, None] & inside[:, None, :])
     ga, gb = np.ascontiguousarray(gradients[q, a].T), np.ascontiguousarray(gradients[q, b].T)  # (3, P)
     vmu, vlam = coefficients[q, 0], coefficients[q, 1]
-    blocks = gb[:, None, :] * (vmu * ga)[None, :, :] + (vlam * ga)[:, None, :] * gb[None, :, :]  # [i, j] = ...
+    # [i, j]: V mu (g_b)_i (g_a)_j + V lambda (g_a)_i (g_b)_j, then V mu g_a . g_b on the diagonal
+    blocks = gb[:, None, :] * (vmu * ga)[None, :, :] + (vlam * ga)[:, None, :] * gb[None, :, :]
     blocks[[0, 1, 2], [0, 1, 2]] += vmu * (ga * gb).sum(axis=0)
     return nodes[q, a], nodes[q, b], blocks.reshape(9, -1)
 
@@ -189,11 +190,13 @@ def rest_system_matrix(data: RestData, dt: float, rayleigh_mass: float, rayleigh
     rows, cols = [free], [free]
     blocks = [_scalar_blocks((1.0 + dt * rayleigh_mass) * data.mass[free])]
     for part in parts:
-        pieces = _spring_blocks(*part[1:3], part[3] * dt * dt) if part[0] == "spring" else None
-        for r, c, b in [pieces] if pieces else _element_blocks(part, selected=index >= 0):
+        if part[0] == "spring":
+            r, c, b = _spring_blocks(*part[1:3], part[3] * dt * dt)
             keep = (index[r] >= 0) & (index[c] >= 0)
-            rows.append(r[keep]), cols.append(c[keep])
-            blocks.append(b[:, keep] if pieces else scale * b[:, keep])
+            rows.append(r[keep]), cols.append(c[keep]), blocks.append(b[:, keep])
+            continue
+        for r, c, b in _element_blocks(part, selected=index >= 0):  # (only the blocks between free nodes)
+            rows.append(r), cols.append(c), blocks.append(scale * b)
     return _block_matrix(index[np.concatenate(rows)], index[np.concatenate(cols)], np.concatenate(blocks, axis=1),
                          len(free)), free
 
