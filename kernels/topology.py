@@ -59,6 +59,12 @@ NOT_RUN = wp.constant(9)  # after a stop of the batch
 NO_POINT = wp.constant(10)  # flip_or_split_face: flip refused and the face has no split point
 
 #: operator kinds of a batch (:func:`run_operators`) and what their ``ints`` / ``reals`` hold
+#: Qualities within this relative difference tie in a general flip's choice of triangulation
+#: (the larger apex wins, as in ``operators.remove_edge``): positions computed here and by the
+#: Python operators can differ in their last bit, and a choice between two equally good
+#: triangulations must not turn on it.
+NEAR_TIE = wp.constant(wp.float64(1.0e-12))
+
 SPLIT_TET = wp.constant(0)  # element, -, -, - / barycentric weights (4)
 FLIP_FACE = wp.constant(1)  # element, corner opposite the face / -
 SPLIT_FACE = wp.constant(2)  # face vertices a, b, c / weights over them (3)
@@ -690,10 +696,10 @@ def remove_edge(m: TetMeshArrays, a: int, b: int, tolerance: wp.float64, volume_
     """General flip, or edge removal (thesis figure 5.3), as ``operators.remove_edge``: the n
     elements around edge (a, b) become 2(n - 2) elements (a, tau) and (b, tau) over the
     triangulation tau of their polygon that maximises the worst element quality (dynamic
-    programming, Shewchuk's edge removal; on a tie the larger apex). A boundary edge's open
-    polygon is closed by one more edge, which replaces its two boundary faces: refused when
-    the volume changes by more than ``volume_tolerance`` (relative), i.e. unless they are
-    coplanar."""
+    programming, Shewchuk's edge removal; on a tie within ``NEAR_TIE`` the larger apex). A
+    boundary edge's open polygon is closed by one more edge, which replaces its two boundary
+    faces: refused when the volume changes by more than ``volume_tolerance`` (relative), i.e.
+    unless they are coplanar."""
     start = find_tet(m, a, b, -1)
     if start < 0:
         return REFUSED_MISSING
@@ -718,7 +724,7 @@ def remove_edge(m: TetMeshArrays, a: int, b: int, tolerance: wp.float64, volume_
                     value = wp.min(value, m.best[i * POLYGON + k])
                 if j > k + 1:
                     value = wp.min(value, m.best[k * POLYGON + j])
-                if apex < 0 or value >= best:
+                if apex < 0 or value >= best - NEAR_TIE * wp.abs(best):
                     best = value
                     apex = k
             m.best[i * POLYGON + j] = best

@@ -648,9 +648,11 @@ class Cutter:
         arrays = region.arrays
         first_copy = arrays.vertex_count
         faces, keys = self._faces_to_open(region, surface, on_cut)
-        copies = arrays.disconnect(faces, sorted({v for key in keys for v in key})) if faces else 0
+        lips = sorted({v for key in keys for v in key})
+        copies = arrays.disconnect(faces, lips) if faces else 0
         global_of = region.write_back()
         self.split_vertices.update(global_of[splits].tolist())
+        self.wound_vertices.update(global_of[lips].tolist())  # duplicated or not (a crack's front)
         if copies:
             new = np.arange(first_copy, first_copy + copies)
             parents = global_of[arrays.vertex_parents.numpy()[new, 0]].tolist()

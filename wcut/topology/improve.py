@@ -67,6 +67,10 @@ MIN_VOLUME_FRACTION = 2.0e-3
 #: Passes over the elements still below the target (each pass may create new poor neighbours).
 PASSES = 3
 
+#: A move must raise the worst measure by more than this (sines lie in [0, 1]): a smaller gain
+#: is rounding, and a move made for it depends on the last bits of the positions.
+MIN_GAIN = 1.0e-12
+
 #: Smoothing tries these fractions of the step towards each candidate position.
 STEPS = (1.0, 0.5, 0.25)
 
@@ -279,7 +283,7 @@ def _better(sine: _Sines, may_make=None):
     their worst sine stays above :meth:`_Sines.floor`, and ``may_make`` (if given) allows them."""
     def accept(removed, added) -> bool:
         measure, least = sine.of(added)
-        return measure > min(sine(t) for t in removed) and least >= sine.floor(removed) and \
+        return measure > min(sine(t) for t in removed) + MIN_GAIN and least >= sine.floor(removed) and \
             (may_make is None or may_make(added))
     return accept
 
@@ -334,7 +338,7 @@ def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: Im
             continue
         targets = np.array([np.asarray(w) @ rest[full] for full, w in tried])
         for q, least, (full, w) in zip(*_star_sines(sine, star, (v,), targets), tried):
-            if q > now and least >= floor:
+            if q > now + MIN_GAIN and least >= floor:
                 moves.append((q - now, v, full, w))
     moves.sort(key=lambda m: -m[0])
     if may_move is not None and moves:  # asked at once: one query of the cut surface
@@ -410,7 +414,7 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
             targets.append(weights)
         points = np.array(targets) @ topo.rest_positions[[v] + lip]
         for q, least, weights in zip(*_star_sines(sine, star, (v, w), points), targets):
-            if q > now and least >= floor:
+            if q > now + MIN_GAIN and least >= floor:
                 moves.append((q - now, v, w, lip, mirrored, weights))
     for _, v, w, lip, mirrored, weights in sorted(moves, key=lambda m: -m[0]):
         try:  # both checked before either moves (w's star does not hold v: the checks stand)

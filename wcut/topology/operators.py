@@ -27,6 +27,11 @@ from .mesh import (REST, TetTopology, TopologyError, face_key, rounded32, signed
 #: overhead (some 40 array operations) exceeds the arithmetic of a few elements.
 SMALL_BATCH = 16
 
+#: Qualities within this relative difference tie in :func:`remove_edge`'s choice of
+#: triangulation (the larger apex wins): the compiled operators' positions can differ from
+#: these in their last bit, and the choice must not turn on it (``kernels.topology.NEAR_TIE``).
+NEAR_TIE = 1.0e-12
+
 
 _quality = tet_quality  # the short name the operators use
 
@@ -370,9 +375,12 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
         for i in range(m - span):
             j = i + span
             qi, best_i = q[i], best[i]
-            best_i[j] = max(
-                (min(qi[k][j], best_i[k][0] if k > i + 1 else inf, best[k][j][0] if j > k + 1 else inf), k)
-                for k in range(i + 1, j))
+            choice = None
+            for k in range(i + 1, j):  # the best; within NEAR_TIE of it, the larger apex (as the kernel)
+                value = min(qi[k][j], best_i[k][0] if k > i + 1 else inf, best[k][j][0] if j > k + 1 else inf)
+                if choice is None or value >= choice[0] - NEAR_TIE * abs(choice[0]):
+                    choice = (value, k)
+            best_i[j] = choice
     if not best[0][m - 1][0] > DEGENERATE_TOL:
         raise TopologyError(f"general flip of edge ({a}, {b}): no triangulation of its {m}-gon "
                             f"gives valid elements (best quality {best[0][m - 1][0]:.2e})")
