@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from conftest import load_tool
 from wcut.cut import METHODS, CutError, Cutter, Plane, Polygon, SweptBlade, TriangleSurface
-from wcut.cut.cutter import CRUMB_ELEMENTS, CRUMB_QUALITY, CRUMB_VOLUME, CURVED_HOLD, REGULAR_QUALITY
+from wcut.cut.cutter import CAP_HOLD, CRUMB_ELEMENTS, CRUMB_QUALITY, CRUMB_VOLUME, CURVED_HOLD, REGULAR_QUALITY
 from wcut.cut.surface import strip
 from wcut.cut.separation import element_sides, plane_separation
 from wcut.mesh import TetMesh, beam, perturbed
@@ -714,20 +714,22 @@ def test_curved_boundary_keeps_every_boundary_face_inside_an_original_one(cube, 
     Cutter(flat, epsilon=epsilon).cut(plane)
     Cutter(curved, epsilon=epsilon, curved_boundary=True).cut(plane)
     check_topology(curved, cube.volumes().sum())
-    # the cut bends through boundary vertices within CURVED_HOLD of it instead of moving them
+    # the cut bends through boundary vertices within CURVED_HOLD of it (CAP_HOLD times that
+    # where it would cut off a small corner) instead of moving them
+    held = CAP_HOLD * CURVED_HOLD * cube.mean_edge_length()
     after = curved.to_mesh()
     labels = connected_components(after)
     assert labels.max() == 1
     distance = plane.signed_distance(after.vertices)[after.tets]
     far = np.take_along_axis(distance, np.abs(distance).argmax(axis=1)[:, None], axis=1)[:, 0]
-    clear = np.abs(far) > CURVED_HOLD * cube.mean_edge_length()
+    clear = np.abs(far) > held
     assert not set(labels[clear & (far > 0)]) & set(labels[clear & (far < 0)])
 
     def outside_original_faces(topo):
         """Boundary faces (off the wound) not inside one boundary face of before."""
         mesh = topo.to_mesh()
         triangles = mesh.boundary().triangles
-        band = CURVED_HOLD * cube.mean_edge_length() + 1e-9  # held vertices are on the wound too
+        band = held + 1e-9  # held vertices are on the wound too
         wound = (np.abs(plane.signed_distance(mesh.vertices))[triangles] < band).all(axis=1)
         corners = cube.vertices[before]  # (F, 3, 3)
         normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
@@ -786,14 +788,18 @@ def test_plane_cuts_of_a_curved_surface_leave_no_needle_at_the_boundary():
     move (the organ's surface is curved: a slide would change its volume), the cut bends
     through the vertex instead of leaving a boundary edge of a few thousandths of an edge
     length, whose elements are wedges of hundredths of a degree (measured on these planes
-    before the cut held: worst 0.06 degrees, 3e-8 of the median volume)."""
+    before the cut held: worst 0.06 degrees, 3e-8 of the median volume). A little farther, it
+    bends through a vertex whose corner it would cut off too small for the improvement to
+    grow, and the two copies of an edge inside the wound contract together where that
+    improves both lips at once: on these planes the smallest element rose from 7.0e-4 to
+    1.4e-3 of the median."""
     from wcut.mesh import dihedral_angles
 
     organ = TetMesh.load(Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "organ.vtu")
     volume, median = organ.volumes().sum(), np.median(organ.volumes())
     rng = np.random.default_rng(0)
     lo, hi = organ.vertices.min(axis=0), organ.vertices.max(axis=0)
-    for _ in range(4):
+    for _ in range(10):
         plane = Plane(lo + (hi - lo) * rng.uniform(0.25, 0.75, 3), rng.normal(size=3))
         topo = TetTopology(organ)
         cutter = Cutter(topo, epsilon=0.1)
@@ -801,8 +807,8 @@ def test_plane_cuts_of_a_curved_surface_leave_no_needle_at_the_boundary():
         check_topology(topo, volume)
         after = topo.to_mesh()
         assert abs(after.volumes().sum() - volume) <= 1e-12 * volume
-        assert dihedral_angles(after.vertices, after.tets).min() > 1.0
-        assert after.volumes().min() > 1e-4 * median
+        assert dihedral_angles(after.vertices, after.tets).min() > 4.0
+        assert after.volumes().min() > 1e-3 * median
         separation = plane_separation(after.vertices, after.tets, plane, cutter.tolerance,
                                       mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
         assert separation.separated, separation.describe()

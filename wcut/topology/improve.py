@@ -376,9 +376,12 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
             if pinned and any(not pinned.isdisjoint(topo.tets[s].tolist()) for u_, _ in pairs
                               for s in topo.vertex_tets[u_]):
                 continue
-            try:
-                checked = [check_contraction(topo, u_, w_, accept=accept) for u_, w_ in pairs]
+            try:  # the two copies' contractions as one move: judged on both stars at once
+                checked = [check_contraction(topo, u_, w_, accept=None if len(pairs) > 1 else accept)
+                           for u_, w_ in pairs]
             except TopologyError:
+                continue
+            if len(pairs) > 1 and not accept([t for c in checked for t in c[0]], [a for c in checked for a in c[1]]):
                 continue
             made = []
             for each in checked:
