@@ -380,10 +380,11 @@ class Cutter:
     @property
     def in_plane(self) -> float:
         """Distance (relative to the mean edge length) within which an element lies in a cut
-        plane, when a complete cut is checked (:mod:`wcut.cut.separation`): the farthest at
-        which it holds boundary vertices off the plane (:data:`CAP_HOLD` times
-        :attr:`hold_distance`)."""
-        return max(IN_PLANE, CAP_HOLD * self.hold_distance)
+        plane, when a complete cut is checked (:mod:`wcut.cut.separation`): the distance at
+        which it holds boundary vertices off the plane (:attr:`hold_distance`). Elements
+        around a vertex held farther (a small corner's, :meth:`_hold`) that still reach across
+        are split along their faces by :meth:`_separate`."""
+        return max(IN_PLANE, self.hold_distance)
 
     def _candidates(self, surface: CutSurface, bounds) -> np.ndarray:
         """Live elements with a vertex near the surface (within :attr:`_margin` of a plane, or
