@@ -58,13 +58,13 @@ NEEDS_POINT = wp.constant(8)  # flip_or_split_face: the split point is needed (t
 NOT_RUN = wp.constant(9)  # after a stop of the batch
 NO_POINT = wp.constant(10)  # flip_or_split_face: flip refused and the face has no split point
 
-#: operator kinds of a batch (:func:`run_operators`) and what their ``ints`` / ``reals`` hold
 #: Qualities within this relative difference tie in a general flip's choice of triangulation
 #: (the larger apex wins, as in ``operators.remove_edge``): positions computed here and by the
 #: Python operators can differ in their last bit, and a choice between two equally good
 #: triangulations must not turn on it.
 NEAR_TIE = wp.constant(wp.float64(1.0e-12))
 
+#: operator kinds of a batch (:func:`run_operators`) and what their ``ints`` / ``reals`` hold
 SPLIT_TET = wp.constant(0)  # element, -, -, - / barycentric weights (4)
 FLIP_FACE = wp.constant(1)  # element, corner opposite the face / -
 SPLIT_FACE = wp.constant(2)  # face vertices a, b, c / weights over them (3)
@@ -431,6 +431,22 @@ def star_search(m: TetMeshArrays, a: int, b: int, c: int):
 
 
 @wp.func
+def rest_before(m: TetMeshArrays, u: int, v: int):
+    """Whether vertex u's rest position comes before v's, coordinate by coordinate, two
+    coordinates within ``NEAR_TIE`` of the points' size counting as equal (as
+    ``TetTopology.rest_before``); by number where the positions are the same."""
+    p = m.vertex_rest[u]
+    q = m.vertex_rest[v]
+    tolerance = NEAR_TIE * (wp.length(p) + wp.length(q))
+    for k in range(3):
+        if p[k] < q[k] - tolerance:
+            return True
+        if p[k] > q[k] + tolerance:
+            return False
+    return u < v
+
+
+@wp.func
 def other_corner(tet: wp.vec4i, a: int, b: int, w: int):
     """The corner of ``tet`` that is none of a, b, w."""
     for k in range(4):
@@ -461,7 +477,9 @@ def edge_ring(m: TetMeshArrays, a: int, b: int, start: int):
     ``TetTopology.edge_ring``: ``m.removed[i]`` is (a, b, polygon[i], polygon[i + 1]) up to
     orientation, with ``signed_volume(a, b, polygon[0], polygon[1]) > 0``; an open ring (a
     boundary edge) starts at a boundary face and has one more polygon vertex than elements; a
-    closed one starts at its smallest polygon vertex. Returns (elements, closed), elements
+    closed one starts at its first polygon vertex by rest position (:func:`rest_before`), so
+    that ties between its triangulations break alike whatever the vertices' numbers. Returns
+    (elements, closed), elements
     -1 beyond :data:`MAX_RING` or where the ring leaves the arrays (:data:`OUTSIDE`)."""
     # an open ring is walked from one end: find it, walking the other way first
     tet = m.tet_indices[start]
@@ -518,10 +536,10 @@ def edge_ring(m: TetMeshArrays, a: int, b: int, start: int):
             for i in range(corners - 1, 0, -1):
                 m.polygon[i] = m.polygon[i - 1]
             m.polygon[0] = last
-    if closed != 0:  # start at the smallest vertex: the same ring whatever the start element
+    if closed != 0:  # start at the first vertex by rest position: the same ring whatever the start element
         r = int(0)
         for i in range(corners):
-            if m.polygon[i] < m.polygon[r]:
+            if rest_before(m, m.polygon[i], m.polygon[r]):
                 r = i
         for i in range(count):
             m.star[i] = m.removed[(i + r) % count]

@@ -25,9 +25,10 @@ improves the elements a change made, and their neighbours, in the rest configura
 - *edge contraction*, where nothing else helps: a vertex the change made merges into a
   neighbour (``contract_edge``), the elements on their edge go and the others around it take
   the neighbour instead; a vertex inside the wound only together with its twin, into the
-  neighbour's twin, so the lips still meet face to face. What no move can grow, the elements
-  between vertices a few hundredths of an edge apart on the wound (a plane passing close to a
-  vertex of the boundary, which may not move), goes. The contracted vertices are dropped when
+  neighbour's twin, so the lips still meet face to face; the pair is one move, judged on both
+  stars together (one lip may get worse, not below the worst of both). What no move can grow,
+  the elements between vertices a few hundredths of an edge apart on the wound (a plane
+  passing close to a vertex of the boundary, which may not move), goes. The contracted vertices are dropped when
   the improvement ends (``TetTopology.drop_orphans``): only vertices of the change, which the
   change record then never mentions.
 
@@ -359,7 +360,8 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
     """Contract one of element t's edges, shortest first, merging a vertex the change made
     into the other end (``contract_edge``), where that raises the worst measure around it: a
     frozen vertex only inside the wound (its copy on the other lip merges into the other
-    end's copy, so the lips still meet), none whose elements hold a pinned vertex."""
+    end's copy, so the lips still meet; the two contractions are judged as one move), none
+    whose elements hold a pinned vertex."""
     first = topo.first_new_vertex
     tet = topo.tet(t)
     rest = topo.rest_tuples
@@ -381,7 +383,7 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
                            for u_, w_ in pairs]
             except TopologyError:
                 continue
-            if len(pairs) > 1 and not accept([t for c in checked for t in c[0]], [a for c in checked for a in c[1]]):
+            if len(pairs) > 1 and not accept([s for c in checked for s in c[0]], [a for c in checked for a in c[1]]):
                 continue
             made = []
             for each in checked:

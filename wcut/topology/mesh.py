@@ -53,6 +53,12 @@ _FACES_THROUGH = tuple(tuple((*face, *[u for u in face if u != local]) for face 
 REST, POSITION, VELOCITY = slice(0, 3), slice(3, 6), slice(6, 9)
 
 
+#: Qualities, and rest coordinates, within this relative difference tie: the compiled
+#: operators' positions can differ from the Python ones in their last bit, and a choice between
+#: two equally good results must not turn on it (``kernels.topology.NEAR_TIE``).
+NEAR_TIE = 1.0e-12
+
+
 class TopologyError(WcutError):
     """An operator refused a change (it would invert or flatten an element, or its input is
     not what it needs); the mesh is left as it was."""
@@ -328,8 +334,9 @@ class TetTopology:
         polygon[i+1]) > 0``. For an interior edge the ring is closed (``polygon`` has one vertex
         per element, indices taken cyclically); for a boundary edge it is open and ``polygon``
         has one more vertex than there are elements. Unsewn faces count as boundary.
-        ``canonical``: a closed ring starts at its smallest polygon vertex, whatever the
-        numbering of the elements (as the compiled operators walk it).
+        ``canonical``: a closed ring starts at its first polygon vertex by rest position
+        (:meth:`rest_before`), whatever the numbering of the elements and vertices (as the
+        compiled operators walk it).
         """
         around = self.edge_tets(a, b)
         if not around:
@@ -386,9 +393,27 @@ class TetTopology:
             if closed:  # keep polygon[i], polygon[i+1] the corners of ring[i]
                 polygon = polygon[-1:] + polygon[:-1]
         if closed and canonical:
-            r = polygon.index(min(polygon))
+            r = 0
+            for i in range(len(polygon)):
+                if self.rest_before(polygon[i], polygon[r]):
+                    r = i
             ring, polygon = ring[r:] + ring[:r], polygon[r:] + polygon[:r]
         return ring, polygon, closed
+
+    def rest_before(self, u: int, v: int) -> bool:
+        """Whether vertex u's rest position comes before v's, coordinate by coordinate, two
+        coordinates within ``NEAR_TIE`` (1e-12) of the points' size counting as equal, so
+        that positions differing in their last bits compare alike; by number where the
+        positions are the same (as ``kernels.topology.rest_before``)."""
+        p, q = self.rest_tuples[u], self.rest_tuples[v]
+        tolerance = NEAR_TIE * (math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+                                + math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]))
+        for a, b in zip(p, q):
+            if a < b - tolerance:
+                return True
+            if a > b + tolerance:
+                return False
+        return u < v
 
     def is_boundary_edge(self, a: int, b: int) -> bool:
         """Whether edge (a, b) lies on a boundary face (unsewn faces are not counted)."""

@@ -20,17 +20,12 @@ import math
 import numpy as np
 
 from ..mesh import DEGENERATE_TOL
-from .mesh import (REST, TetTopology, TopologyError, face_key, rounded32, signed_volume, tet_quality,
+from .mesh import (NEAR_TIE, REST, TetTopology, TopologyError, face_key, rounded32, signed_volume, tet_quality,
                    tet_quality_and_length)
 
 #: Up to this many elements :func:`tet_qualities` loops in plain floats: numpy's per-call
 #: overhead (some 40 array operations) exceeds the arithmetic of a few elements.
 SMALL_BATCH = 16
-
-#: Qualities within this relative difference tie in :func:`remove_edge`'s choice of
-#: triangulation (the larger apex wins): the compiled operators' positions can differ from
-#: these in their last bit, and the choice must not turn on it (``kernels.topology.NEAR_TIE``).
-NEAR_TIE = 1.0e-12
 
 
 _quality = tet_quality  # the short name the operators use
