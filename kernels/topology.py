@@ -59,9 +59,10 @@ NOT_RUN = wp.constant(9)  # after a stop of the batch
 NO_POINT = wp.constant(10)  # flip_or_split_face: flip refused and the face has no split point
 
 #: Qualities within this relative difference tie in a general flip's choice of triangulation
-#: (the larger apex wins, as in ``operators.remove_edge``): positions computed here and by the
-#: Python operators can differ in their last bit, and a choice between two equally good
-#: triangulations must not turn on it.
+#: (the larger apex wins, as in ``operators.remove_edge``), and so do rest coordinates in
+#: :func:`rest_before`: positions computed here and by the Python operators can differ in their
+#: last bit, and a choice between two equally good triangulations must not turn on it
+#: (``topology.mesh.NEAR_TIE``).
 NEAR_TIE = wp.constant(wp.float64(1.0e-12))
 
 #: operator kinds of a batch (:func:`run_operators`) and what their ``ints`` / ``reals`` hold
@@ -479,8 +480,8 @@ def edge_ring(m: TetMeshArrays, a: int, b: int, start: int):
     boundary edge) starts at a boundary face and has one more polygon vertex than elements; a
     closed one starts at its first polygon vertex by rest position (:func:`rest_before`), so
     that ties between its triangulations break alike whatever the vertices' numbers. Returns
-    (elements, closed), elements
-    -1 beyond :data:`MAX_RING` or where the ring leaves the arrays (:data:`OUTSIDE`)."""
+    (elements, closed), elements -1 beyond :data:`MAX_RING` or where the ring leaves the
+    arrays (:data:`OUTSIDE`)."""
     # an open ring is walked from one end: find it, walking the other way first
     tet = m.tet_indices[start]
     first = other_corner(tet, a, b, -1)

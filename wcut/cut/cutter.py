@@ -50,6 +50,7 @@ from ..topology.improve import MIN_VOLUME_FRACTION as IMPROVE_MIN_VOLUME_FRACTIO
 from ..topology.improve import TARGET_ANGLE as IMPROVE_TARGET
 from ..topology.improve import has_poor
 from ..topology.improve import improve as improve_mesh
+from ..topology.mesh import signed_volume
 from ..topology.operators import check_vertex_move
 from ..topology.region import OUTSIDE, TetRegion
 from .separation import IN_PLANE, element_sides
@@ -507,19 +508,15 @@ class Cutter:
     def _small_corner(self, v: int, sampling: _Sampling, x: np.ndarray) -> bool:
         """Whether the surface cuts off vertex v's corner of one of its elements (its three
         edges there crossed) with a volume below :attr:`least_corner` (m^3)."""
-        edges = sampling.edges
         for t in self.topology.vertex_tets[v]:
             others = [u for u in self.topology.tets[t].tolist() if u != v]
-            crossings = []
-            for u in others:
-                c = edges.get(_edge(v, u))
-                if c is None:
-                    break
-                s = c[0] if v < u else 1.0 - c[0]  # from v towards u
-                crossings.append(s * (x[u] - x[v]))
-            else:
-                if abs(float(np.linalg.det(np.array(crossings)))) / 6.0 < self.least_corner:
-                    return True
+            crossings = [sampling.edges.get(_edge(v, u)) for u in others]
+            if None in crossings:
+                continue
+            # (each crossing's parameter runs from the edge's smaller vertex)
+            points = [x[v] + (t_ if v < u else 1.0 - t_) * (x[u] - x[v]) for u, (t_, _) in zip(others, crossings)]
+            if abs(signed_volume(x[v], *points)) < self.least_corner:
+                return True
         return False
 
     def _snap(self, sampling: _Sampling, threshold: float, stats: CutStats) -> set[int]:

@@ -28,9 +28,9 @@ improves the elements a change made, and their neighbours, in the rest configura
   neighbour's twin, so the lips still meet face to face; the pair is one move, judged on both
   stars together (one lip may get worse, not below the worst of both). What no move can grow,
   the elements between vertices a few hundredths of an edge apart on the wound (a plane
-  passing close to a vertex of the boundary, which may not move), goes. The contracted vertices are dropped when
-  the improvement ends (``TetTopology.drop_orphans``): only vertices of the change, which the
-  change record then never mentions.
+  passing close to a vertex of the boundary, which may not move), goes. The contracted
+  vertices are dropped when the improvement ends (``TetTopology.drop_orphans``): only vertices
+  of the change, which the change record then never mentions.
 
 The measure is the smallest sine of an element's six dihedral angles (:func:`min_sine`):
 small for slivers, needles and caps alike (a dihedral angle near 0 or near 180 degrees both
