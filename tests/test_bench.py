@@ -3,7 +3,9 @@
 
 import json
 
-from wcut.bench import run_benchmarks
+import numpy as np
+
+from wcut.bench import ACCURACY_DT, ACCURACY_RAMPS, load_ramp, run_benchmarks
 from wcut.cut import METHODS
 
 KEYS = {"name", "tets", "nodes", "step_ms", "cpu_threads", "step_ms_one_thread", "reference_step_ms", "speedup_vs_reference", "rotation_ns_per_element",
@@ -15,9 +17,9 @@ METHOD_KEYS = {"method", "epsilon", "cut_elements", "added_nodes_per_cut_element
 
 P2_KEYS = {"name", "tets", "nodes", "step_ms", "steps_per_second", "cpu_threads", "step_ms_one_thread",
            "forces_ns_per_element", "matvec_ns_per_element", "p1_same_corners_step_ms", "cg_iterations"}
-ACCURACY_KEYS = {"name", "youngs_modulus", "tets", "nodes", "static_tip_mm", "steps", "settled", "first_step_ms", "step_ms",
-                 "cg_iterations", "tip_error", "inverted_elements", "jacobi_step_ms", "jacobi_cg_iterations", "jacobi_capped",
-                 "jacobi_step_ratio"}
+ACCURACY_KEYS = {"name", "youngs_modulus", "load_ramp_s", "tets", "nodes", "static_tip_mm", "steps", "settled",
+                 "first_step_ms", "step_ms", "cg_iterations", "tip_error", "inverted_elements", "jacobi_step_ms",
+                 "jacobi_cg_iterations", "jacobi_capped", "jacobi_step_ratio"}
 BLADE_KEYS = {"scene", "frames", "elements", "cut_events", "step_ms_mean", "cut_seconds", "cg_iterations",
               "real_time_factor"}
 #: Two short beams of 1 cm cells with the 4 x 5 cross-section of wcut.bench.CUT_SCENES.
@@ -53,12 +55,17 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     assert blade["step_ms_mean"] > 0 and blade["cut_seconds"] > 0 and blade["real_time_factor"] > 0
     assert "blade scene" in out
 
-    # time to accuracy: the default solver settles on the static deflection of the scipy reference
-    (accuracy,) = written["time_to_accuracy"]
-    assert set(accuracy) == ACCURACY_KEYS
-    assert accuracy["settled"] and accuracy["tip_error"] < 0.01 and accuracy["inverted_elements"] == 0, accuracy
-    assert accuracy["static_tip_mm"] > 0 and accuracy["cg_iterations"] >= 1 and accuracy["jacobi_cg_iterations"] >= 1
-    assert accuracy["first_step_ms"] > 0 and accuracy["step_ms"] > 0
+    # time to accuracy: the default solver settles on the static deflection of the scipy reference,
+    # with the load applied at once and raised smoothly (settled only once it is whole)
+    sudden, ramped = written["time_to_accuracy"]
+    assert (sudden["load_ramp_s"], ramped["load_ramp_s"]) == ACCURACY_RAMPS
+    for accuracy in (sudden, ramped):
+        assert set(accuracy) == ACCURACY_KEYS
+        assert accuracy["settled"] and accuracy["tip_error"] < 0.01 and accuracy["inverted_elements"] == 0, accuracy
+        assert accuracy["static_tip_mm"] > 0 and accuracy["cg_iterations"] >= 1
+        assert accuracy["jacobi_cg_iterations"] >= 1 and accuracy["first_step_ms"] > 0 and accuracy["step_ms"] > 0
+    assert abs(sudden["static_tip_mm"] - ramped["static_tip_mm"]) < 1e-9
+    assert ramped["steps"] > round(ACCURACY_RAMPS[1] / ACCURACY_DT) > sudden["steps"], (ramped, sudden)
 
     # quadratic elements: same corners, plus one node per edge
     (p2,) = written["quadratic"]
@@ -130,3 +137,13 @@ def test_benchmark_checks_its_output_before_running(tmp_path, monkeypatch):
     monkeypatch.setattr(wcut.bench, "bench_cut_event", lambda *a, **k: pytest.fail("benchmarked before the check"))
     with pytest.raises(ExportError, match="cannot write here"):
         run_benchmarks(tmp_path / "blocked" / "bench.json", progress=False)
+
+
+def test_the_load_ramp_rises_smoothly_from_nothing_to_the_whole_load():
+    times = np.linspace(-1.0, 4.0, 501)
+    fractions = np.array([load_ramp(t, 3.0) for t in times])
+    assert fractions[times <= 0.0].max() == 0.0 and fractions[times >= 3.0].min() == 1.0
+    assert np.all(np.diff(fractions) >= 0.0) and abs(load_ramp(1.5, 3.0) - 0.5) < 1e-15
+    # its rate starts and ends at zero: no jolt when the load starts or stops rising
+    assert load_ramp(0.01, 3.0) < 1e-4 and 1.0 - load_ramp(2.99, 3.0) < 1e-4
+    assert load_ramp(0.0, 0.0) == load_ramp(1e-9, 0.0) == 1.0  # no ramp: the whole load at once
