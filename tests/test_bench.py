@@ -19,7 +19,8 @@ P2_KEYS = {"name", "tets", "nodes", "step_ms", "steps_per_second", "cpu_threads"
            "forces_ns_per_element", "matvec_ns_per_element", "p1_same_corners_step_ms", "cg_iterations"}
 ACCURACY_KEYS = {"name", "youngs_modulus", "load_ramp_s", "tets", "nodes", "static_tip_mm", "steps", "settled",
                  "first_step_ms", "step_ms", "cg_iterations", "tip_error", "inverted_elements", "jacobi_step_ms",
-                 "jacobi_cg_iterations", "jacobi_capped", "jacobi_step_ratio"}
+                 "same_steps_ms", "same_steps_cg_iterations", "jacobi_cg_iterations", "jacobi_capped",
+                 "jacobi_step_ratio"}
 BLADE_KEYS = {"scene", "frames", "elements", "cut_events", "step_ms_mean", "cut_seconds", "cg_iterations",
               "real_time_factor"}
 #: Two short beams of 1 cm cells with the 4 x 5 cross-section of wcut.bench.CUT_SCENES.
@@ -64,6 +65,10 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
         assert accuracy["settled"] and accuracy["tip_error"] < 0.01 and accuracy["inverted_elements"] == 0, accuracy
         assert accuracy["static_tip_mm"] > 0 and accuracy["cg_iterations"] >= 1
         assert accuracy["jacobi_cg_iterations"] >= 1 and accuracy["first_step_ms"] > 0 and accuracy["step_ms"] > 0
+        # the ratio compares the two solvers over the same steps
+        assert accuracy["same_steps_ms"] > 0 and accuracy["same_steps_cg_iterations"] >= 1
+        assert abs(accuracy["jacobi_step_ratio"] - accuracy["jacobi_step_ms"] / accuracy["same_steps_ms"]) < 0.051 * \
+            accuracy["jacobi_step_ratio"] + 0.051
     assert abs(sudden["static_tip_mm"] - ramped["static_tip_mm"]) < 1e-9
     assert ramped["steps"] > round(ACCURACY_RAMPS[1] / ACCURACY_DT) > sudden["steps"], (ramped, sudden)
 
