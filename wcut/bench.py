@@ -220,33 +220,24 @@ def _settle(model, solver, tip: int, static: np.ndarray, load: np.ndarray, max_s
     and CG iterations of the steps after it, and of those among the first ``early_steps``."""
     state, scratch = model.state(), model.state()
     rest, size = model.particle_q.numpy()[tip].astype(np.float64), float(np.linalg.norm(static))
-    seconds, iterations, within, steps, first = 0.0, 0, 0, 0, 0.0
-    early_seconds, early_iterations = 0.0, 0
-    while steps < max_steps and within < SETTLED_STEPS:
-        fraction = load_ramp((steps + 1) * ACCURACY_DT, ramp)  # (implicit Euler: the load at the step's end)
+    seconds, iterations, within = [], [], 0  # per step
+    while len(seconds) < max_steps and within < SETTLED_STEPS:
+        fraction = load_ramp((len(seconds) + 1) * ACCURACY_DT, ramp)  # (implicit Euler: the load at the step's end)
         state.particle_f.assign((fraction * load).astype(np.float32))
         start = time.perf_counter()
         solver.step(state, scratch, None, ACCURACY_DT)
         wp.synchronize_device(model.device)
-        if steps:
-            seconds += time.perf_counter() - start
-        else:
-            first = time.perf_counter() - start
+        seconds.append(time.perf_counter() - start)
+        iterations.append(solver.last_cg_iterations)
         state, scratch = scratch, state
-        steps += 1
-        iterations += solver.last_cg_iterations
-        if steps == early_steps:
-            early_seconds, early_iterations = seconds, iterations
-        if steps % 10 == 0:
+        if len(seconds) % 10 == 0:
             solver.check()
         error = float(np.linalg.norm(state.particle_q.numpy()[tip] - rest - static))
         within = within + 1 if error <= 0.01 * size and fraction == 1.0 else 0
-    if steps < early_steps:
-        early_seconds, early_iterations = seconds, iterations
-    early = min(steps, early_steps)
-    return {"steps": steps, "first_step_ms": 1e3 * first, "step_ms": 1e3 * seconds / max(1, steps - 1),
-            "iterations": iterations / steps, "early_step_ms": 1e3 * early_seconds / max(1, early - 1),
-            "early_iterations": early_iterations / max(1, early),
+    mean_ms = lambda values: 1e3 * float(np.mean(values)) if values else 0.0  # noqa: E731
+    return {"steps": len(seconds), "first_step_ms": 1e3 * seconds[0], "step_ms": mean_ms(seconds[1:]),
+            "iterations": float(np.mean(iterations)), "early_step_ms": mean_ms(seconds[1:early_steps]),
+            "early_iterations": float(np.mean(iterations[:early_steps])),
             "settled": within >= SETTLED_STEPS, "tip_error": error / size,
             "inverted": inverted_count(model, state.particle_q.numpy())}
 
