@@ -182,9 +182,14 @@ def _alternating_step_seconds(runs, control, repeats: int, iterations: list | No
     return {key: statistics.median(samples[id(run)]) for key, run in runs.items()}
 
 
+def _clamped(mesh):
+    """The vertices of a benchmark beam's clamped end, z = 0."""
+    return mesh.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9))
+
+
 def _scene_model(cells, size, device=None):
     mesh = beam(*cells, size=size)
-    fixed = mesh.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9))
+    fixed = _clamped(mesh)
     model = Model(mesh, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3, rayleigh_mass=0.1,
                   rayleigh_stiffness=0.01, gravity=(9.81, 0.0, 0.0), fixed=fixed, device=device)
     return mesh, model, fixed
@@ -261,7 +266,7 @@ def _beam_static_tip(cells: tuple, size: tuple, youngs_modulus: float) -> tuple[
     """The tip vertex of a benchmark beam and its static deflection (m), computed once per beam
     and modulus (both loadings of :func:`bench_time_to_accuracy` share it)."""
     mesh = beam(*cells, size=size)
-    fixed = mesh.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9))
+    fixed = _clamped(mesh)
     tip = int(np.argmax(mesh.vertices[:, 2] + 1e-3 * mesh.vertices[:, 0] + 1e-6 * mesh.vertices[:, 1]))
     return tip, static_tip_deflection(mesh, fixed, youngs_modulus, tip)
 
@@ -275,7 +280,7 @@ def bench_time_to_accuracy(name: str, cells, size, youngs_modulus: float, *, max
     load rises over ``ramp`` (s; 0: at once, see :data:`ACCURACY_RAMPS`), applied as the
     states' external forces, so that a step replays the same recorded launches while it rises."""
     mesh = beam(*cells, size=size)
-    fixed = mesh.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9))
+    fixed = _clamped(mesh)
     gravity = np.array([0.0, -9.81, 0.0])
     model = Model(mesh, density=1000.0, youngs_modulus=youngs_modulus, poisson_ratio=0.3,
                   rayleigh_mass=ACCURACY_DAMPING, gravity=(0.0, 0.0, 0.0), fixed=fixed)
@@ -400,8 +405,7 @@ def bench_quadratic(name: str, cells, size, *, repeats: int = 20, device=None) -
     times = {}
     for label, each in (("p2", mesh), ("p1", linear)):
         model = Model(each, density=1000.0, youngs_modulus=1.0e5, poisson_ratio=0.3, rayleigh_mass=0.1,
-                      rayleigh_stiffness=0.01, gravity=(9.81, 0.0, 0.0),
-                      fixed=each.vertices_in_box((-1.0, -1.0, -1.0), (1.0, 1.0, 1e-9)), device=device)
+                      rayleigh_stiffness=0.01, gravity=(9.81, 0.0, 0.0), fixed=_clamped(each), device=device)
         runs = _bent_solvers(model, thread_counts=(None, 1) if label == "p2" else (None,), settings={})
         iterations = []
         for threads, seconds in _alternating_step_seconds(runs, None, repeats, iterations).items():
