@@ -226,9 +226,13 @@ def _settle(model, solver, tip: int, static: np.ndarray, load: np.ndarray, max_s
     state, scratch = model.state(), model.state()
     rest, size = model.particle_q.numpy()[tip].astype(np.float64), float(np.linalg.norm(static))
     seconds, iterations, within = [], [], 0  # per step
+    applied = None  # the fraction of the load in both states' particle_f
     while len(seconds) < max_steps and within < SETTLED_STEPS:
         fraction = load_ramp((len(seconds) + 1) * ACCURACY_DT, ramp)  # (implicit Euler: the load at the step's end)
-        state.particle_f.assign((fraction * load).astype(np.float32))
+        if fraction != applied:  # (the states take turns as the step's input)
+            for each in (state, scratch):
+                each.particle_f.assign((fraction * load).astype(np.float32))
+            applied = fraction
         start = time.perf_counter()
         solver.step(state, scratch, None, ACCURACY_DT)
         wp.synchronize_device(model.device)
