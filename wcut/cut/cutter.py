@@ -229,8 +229,9 @@ class Cutter:
             that is smaller, or whose rest volume is below 2e-3 of the input's median element,
             or below its smallest where that is smaller (:mod:`wcut.topology.improve`): the
             vertices inside the wound slide on it with their copies, the others move, edges and
-            faces flip, and edges whose end the cut made contract; the cut surface, the
-            boundary, the lips' match and the volume stay as they are, and the elements a
+            faces flip, and edges whose end the cut made contract; the cut surface (where a
+            held boundary vertex bends it: within the band it spans there), the boundary, the
+            lips' match and the volume stay as they are, and the elements a
             progressive blade is still in are left for its next increment. On by default; it
             costs some 6 ms per increment of ``organ_cut``'s blade and 90 ms per plane cut of
             the organ at epsilon 0.1 (``tools/cut_separation.py``). The corners of quadratic
@@ -1126,7 +1127,9 @@ class Cutter:
         """Local mesh improvement (:mod:`wcut.topology.improve`) of the elements this cut made
         or changed and of the elements around their vertices. Frozen: the vertices on the cut
         surface (within the tolerance, on the wound's lips or split on it), so the cut surface,
-        and the lips' match, stay as they are."""
+        and the lips' match, stay as they are; a vertex inside the wound slides with its copy,
+        within its lips' fan where that is flat, else within the band the fan spans about the
+        surface (``within_band`` below)."""
         topo = self.topology
         changed = topo.changed_tets()
         if not changed:
@@ -1150,6 +1153,7 @@ class Cutter:
                 copies.setdefault(topo.rest_tuples[v], []).append(v)
             twins = {v: w for pair in copies.values() if len(pair) == 2 for v, w in (pair, pair[::-1])}
         coordinates, tolerance = self.coordinates(), self.tolerance
+        band = CAP_HOLD * self.hold_distance * self.mean_edge_length + tolerance
 
         def off_the_cut(vertices: list[int], parents: list[list[int]], weights: list[list[float]]) -> np.ndarray:
             """Per move of ``vertices[i]``: it neither crosses the surface nor ends within its
@@ -1157,6 +1161,17 @@ class Cutter:
             p = np.array([np.asarray(w) @ coordinates[u] for u, w in zip(parents, weights)])
             t, _ = surface.crossings(coordinates[list(vertices)], p, tolerance)
             return np.isnan(t) & (surface.distance(p, tolerance) > tolerance)
+
+        def within_band(vertices: list[int], parents: list[list[int]], weights: list[list[float]]) -> np.ndarray:
+            """Per slide of a wound vertex off its bent fan's planes: its fan, ``parents[i]``, is
+            this cut's (within the farthest a held vertex lies from the surface), and it ends no
+            farther from the surface than the fan's farthest vertex: the surface stays within
+            the band that holding a boundary vertex bent it to."""
+            p = np.array([np.asarray(w) @ coordinates[u] for u, w in zip(parents, weights)])
+            fans = sorted({u for each in parents for u in each})
+            reach = dict(zip(fans, surface.distance(coordinates[fans], band).tolist()))
+            farthest = np.array([max(reach[u] for u in each) for each in parents])
+            return np.isfinite(farthest) & (surface.distance(p, band) <= farthest + tolerance)
 
         def apart(tets: list[list[int]]) -> bool:
             """No edge of ``tets`` crosses the surface (an element across the cut joins its sides)."""
@@ -1166,7 +1181,8 @@ class Cutter:
 
         # the elements the blade is still in are cut by a later increment as they are now
         result = improve_mesh(topo, work, frozen, target=self.improve_target, min_volume=self.improve_min_volume,
-                              twins=twins, pinned=self._waiting_vertices, may_move=off_the_cut, may_make=apart,
+                              twins=twins, pinned=self._waiting_vertices, may_move=off_the_cut, may_bend=within_band,
+                              may_make=apart,
                               contract=True)
         if result.contracted:  # the vertices merged into others go; the last ones take their numbers
             dropped, moved = topo.drop_orphans()

@@ -527,13 +527,17 @@ def move_vertex(topo: TetTopology, v: int, parents, weights, *, feature_angle: f
     topo.set_vertex(v, list(parents), weights)
 
 
-def check_vertex_move(topo: TetTopology, v: int, parents, weights, *, feature_angle: float = 0.0) -> np.ndarray:
+def check_vertex_move(topo: TetTopology, v: int, parents, weights, *, feature_angle: float = 0.0,
+                      keep_boundary: bool = True) -> np.ndarray:
     """Raise :class:`TopologyError` where :func:`move_vertex` would refuse the move; return the
     weights as it takes them. Changes nothing (a caller moving two vertices together checks
-    both first)."""
+    both first). ``keep_boundary`` False lets v leave the planes of its boundary faces: for a
+    vertex inside a wound moving with its copy on the other lip, whose faces follow (the lips
+    still meet and the volume stays); only the elements around v are checked then."""
     weights = _weights(weights, len(parents), f"moving vertex {v}")
     target = _point(topo, parents, weights)
-    normals = _boundary_normals(topo, v)  # (first: the cheaper test, and most snaps on a curved boundary fail it)
+    # (the boundary first: the cheaper test, and most snaps on a curved boundary fail it)
+    normals = _boundary_normals(topo, v) if keep_boundary else np.zeros((0, 3))
     if _off_its_planes(normals, target - topo.vertex_data[v, REST]):
         along = len(parents) == 2 and v in parents and topo.is_boundary_edge(*parents)
         smooth = (normals @ normals.T).min() > np.cos(np.radians(feature_angle))
