@@ -163,9 +163,9 @@ def test_sliding_on_the_wound_moves_both_lips_and_keeps_each_side(point, normal)
 
 def test_improvement_spares_the_elements_under_a_progressive_blade(monkeypatch):
     """A blade drawn through a beam of perturbed elements (worst dihedral angle 11 degrees): the
-    improvement after each increment moves no vertex of the elements the blade is still in (cut
-    by a later increment as they are) and keeps the elements made of those vertices alone; the
-    beam ends in two pieces."""
+    improvement after each increment keeps the elements made of the vertices of those the blade
+    is still in alone (no flip or contraction rearranges them; smoothing may move their
+    vertices, and does); the beam ends in two pieces."""
     import wcut.cut.cutter as cutter_module
     from wcut.cut import SweptBlade
     from wcut.topology import connected_components
@@ -174,14 +174,13 @@ def test_improvement_spares_the_elements_under_a_progressive_blade(monkeypatch):
 
     def improve_checked(topo, elements, frozen, *, pinned, **options):
         def spared():
-            return {tuple(sorted(tet)): topo.rest_positions[tet].round(15).tobytes()
-                    for tet in topo.tets[topo.live_tets()].tolist() if pinned.issuperset(tet)}
+            return {tuple(sorted(tet)) for tet in topo.tets[topo.live_tets()].tolist() if pinned.issuperset(tet)}
 
         before, where = spared(), topo.rest_positions[sorted(pinned)].copy()
         stats = real(topo, elements, frozen, pinned=pinned, **options)
-        assert before.items() <= spared().items()
-        assert np.array_equal(topo.rest_positions[sorted(pinned)], where)
-        calls.append((len(pinned), stats.slid + stats.smoothed + stats.edge_flips + stats.face_flips))
+        assert before <= spared()
+        moved = int((topo.rest_positions[sorted(pinned)] != where).any(axis=1).sum())
+        calls.append((len(pinned), stats.slid + stats.smoothed + stats.edge_flips + stats.face_flips, moved))
         return stats
 
     monkeypatch.setattr(cutter_module, "improve_mesh", improve_checked)
@@ -193,7 +192,7 @@ def test_improvement_spares_the_elements_under_a_progressive_blade(monkeypatch):
     for k in range(1, sweep.frame_count):
         cutter.cut(sweep.increment(k), progressive=True)
         check_topology(topo, mesh.volumes().sum(), volume_tolerance=1e-12)
-    assert sum(pinned for pinned, _ in calls) > 0 and sum(moves for _, moves in calls) > 0
+    assert sum(c[0] for c in calls) > 0 and sum(c[1] for c in calls) > 0 and sum(c[2] for c in calls) > 0
     assert connected_components(topo.to_mesh()).max() == 1
 
 

@@ -164,8 +164,9 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     moves make. ``frozen``: vertices that must not move alone (the cut surface). ``twins``: the
     copy on the other lip of each vertex inside the wound (both ways; a vertex the cut did not
     duplicate, at the wound's front, maps to itself), for sliding. ``pinned``: vertices that
-    never move, not even sliding, and whose elements no flip or contraction removes (a
-    progressive cut's elements still under the blade).
+    may move but between which no edge or face flips, and whose elements no contraction removes
+    (those of a progressive cut's elements still under the blade: flipping them made the two
+    lips of a curved wound differ in their triangulation once the blade had passed).
     ``may_move(vertices, parents, weights)``: per move of ``vertices[i]`` to the combination
     ``parents[i]``, ``weights[i]``, whether smoothing may make it (a boolean array; the cutter
     refuses a move onto or across the cut surface, which would join the sides);
@@ -178,7 +179,7 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     too, merging a vertex made in the change being recorded (``topo.begin_change``) into a
     neighbour; the caller drops the vertices left without elements (``topo.drop_orphans``)."""
     stats = ImproveStats()
-    fixed = frozen | set(pinned) if pinned else frozen
+    unflipped = frozen | set(pinned) if pinned else frozen
     goal = math.sin(math.radians(target))
     sine = _Sines(topo, goal, _volume_scale(target, min_volume))
     accept = _better(sine, may_make)
@@ -209,8 +210,8 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
             if t in failed_at and all(moved_at.get(v, -1) < failed_at[t] for v in topo.tets[t].tolist()):
                 continue
             made = (twins and _slide(topo, t, twins, pinned, sine, stats, may_bend)) \
-                or _flip_edges(topo, t, fixed, accept, stats) or _flip_faces(topo, t, fixed, accept, stats) \
-                or _smooth(topo, t, fixed, sine, stats, may_move) \
+                or _flip_edges(topo, t, unflipped, accept, stats) or _flip_faces(topo, t, unflipped, accept, stats) \
+                or _smooth(topo, t, frozen, sine, stats, may_move) \
                 or (contract and _contract(topo, t, frozen, twins or {}, pinned, accept, stats))
             if made:
                 moves += 1
