@@ -122,6 +122,24 @@ def test_a_vertex_pushed_against_a_face_is_smoothed_back():
     check_topology(topo, 1.0, volume_tolerance=1e-12)
 
 
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_a_vertex_beside_a_face_near_its_plane_is_lifted_to_a_regular_height(side):
+    """A cap: the vertex lies a hundredth of an edge from the plane of the opposite face, beside
+    it (pushing it from the face's centroid only slides it along the plane). The lifted
+    position is straight above, on the vertex's side, at the height of a regular element on the
+    face, as weights of the four corners summing to 1; a vertex that high already is not moved."""
+    from wcut.topology.improve import _lifted
+
+    face = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    vertex = np.array([2.0, 0.3, 0.01 * side])
+    weights = _lifted(np.vstack([vertex, face]))
+    assert sum(weights) == pytest.approx(1.0)
+    edge = (1.0 + 1.0 + math.sqrt(2.0)) / 3.0
+    np.testing.assert_allclose(np.asarray(weights) @ np.vstack([vertex, face]),
+                               [2.0, 0.3, side * math.sqrt(2.0 / 3.0) * edge], atol=1e-12)
+    assert _lifted(np.vstack([[0.2, 0.2, side], face])) is None
+
+
 ORGAN = TetMesh.load(Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "organ.vtu")
 
 

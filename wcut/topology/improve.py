@@ -9,10 +9,11 @@ improves the elements a change made, and their neighbours, in the rest configura
   and larger rings, the best triangulation of the ring by dynamic programming) and the 2-3
   flip of a face (``flip23``);
 - *smoothing*: a vertex moves towards the centroid of its neighbours, or away from the
-  opposite face of its worst element, within its star (``move_vertex``, whose state is carried
-  by interpolation in the change record). A boundary vertex moves only within a flat boundary
-  (there the move keeps the boundary and the volume to rounding); *frozen* vertices (on the cut
-  surface, its lips) never move alone;
+  opposite face of its worst element, or straight off that face's plane to the height of a
+  regular element on it (a cap beside the face), within its star (``move_vertex``, whose state
+  is carried by interpolation in the change record). A boundary vertex moves only within a
+  flat boundary (there the move keeps the boundary and the volume to rounding); *frozen*
+  vertices (on the cut surface, its lips) never move alone;
 - *sliding on the cut*: a vertex inside the wound and its copy on the other lip (*twins*, at
   the same rest position) move together towards the centroid of their neighbours on the lip,
   so the lips still meet face to face and the volume stays. Within a flat fan the wound's
@@ -478,7 +479,7 @@ def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
     vertices: the centroid of its neighbours (of its boundary neighbours for a boundary
     vertex, which keeps it in a flat boundary's plane) and, inside, v pushed away from the
     face opposite it in its worst element by a quarter of its distance from that face's
-    centroid."""
+    centroid, and lifted off that face's plane (:func:`_lifted`)."""
     on_boundary = _boundary_neighbours(topo, v)
     boundary = bool(on_boundary)
     neighbours = sorted({u for s in star for u in topo.tets[s].tolist()} - {v})
@@ -490,6 +491,33 @@ def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
         worst = min(star, key=sine)
         face = [u for u in topo.tets[worst].tolist() if u != v]
         yield [v] + face, [1.25] + [-0.25 / 3.0] * 3
+        lifted = _lifted(topo.rest_positions[[v] + face])
+        if lifted is not None:
+            yield [v] + face, lifted
+
+
+def _lifted(corners: np.ndarray) -> list[float] | None:
+    """Weights (of the corners (4, 3), vertex first) of the vertex moved along the normal of
+    the opposite face to the height of a regular element on that face (its mean edge): a cap,
+    whose vertex lies near the plane of the face but beside it, is lifted off the plane, where
+    pushing the vertex from the face's centroid only slides it along. None where the vertex is
+    that high already."""
+    a, b, c = corners[1:]
+    normal = np.cross(b - a, c - a)
+    area2 = float(np.linalg.norm(normal))
+    if area2 == 0.0:
+        return None
+    normal /= area2
+    height = float(normal @ (corners[0] - a))
+    if height < 0.0:
+        normal, height = -normal, -height
+    edge = (np.linalg.norm(b - a) + np.linalg.norm(c - b) + np.linalg.norm(a - c)) / 3.0
+    rise = math.sqrt(2.0 / 3.0) * edge - height
+    if rise <= 0.0:
+        return None
+    # the step in the barycentric coordinates of the element: [a-v, b-v, c-v] l = rise * normal
+    local = np.linalg.solve((corners[1:] - corners[0]).T, rise * normal)
+    return [1.0 - float(local.sum())] + local.tolist()
 
 
 def _boundary_neighbours(topo: TetTopology, v: int) -> set[int]:
