@@ -233,11 +233,10 @@ class Cutter:
             held boundary vertex bends it: within the band it spans there), the boundary, the
             lips' match and the volume stay as they are; no flip, slide or contraction
             rearranges the elements a progressive blade is still in, though smoothing may move
-            their vertices (16 straight blades through the organ, 12 and 30 increments each: 77
-            increments of 145 left an angle below 5 degrees, 84 with those vertices kept; on the
-            perturbed beam 86 and 112 of 172). On by default; it
-            costs some 6 ms per increment of ``organ_cut``'s blade and 90 ms per plane cut of
-            the organ at epsilon 0.1 (``tools/cut_separation.py``). The corners of quadratic
+            their vertices (16 straight blades through the organ: 77 increments of 145 left an
+            angle below 5 degrees, 84 with those vertices kept). On by default; it costs some
+            3 ms per increment of ``organ_cut``'s blade and 30 ms per plane cut of the organ at
+            epsilon 0.1 (``tools/cut_separation.py``). The corners of quadratic
             elements are improved only where every element is straight
             (:class:`~wcut.cut.quadratic.QuadraticCutter`).
     """
