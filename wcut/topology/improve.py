@@ -49,9 +49,10 @@ elements it replaces or reshapes and leaves no sine below the target or below th
 worst element never gets worse and growing an element never makes a sliver; every move keeps
 the rest volume, the outer boundary and the cut surface (a bent one within its band): a flip
 of a boundary edge only where its boundary faces are coplanar, no flip removes an edge or a
-face whose vertices are all frozen. The caller keeps the sides of the cut apart: the cutter refuses a smoothing move that
-ends within the surface's tolerance or crosses it, and a flip that makes an element with an
-edge across it (without either, half of the organ's plane cuts at epsilon 0 were left joined).
+face whose vertices are all frozen. The caller keeps the sides of the cut apart: the cutter
+refuses a smoothing move that ends within the surface's tolerance or crosses it, and a flip
+that makes an element with an edge across it (without either, half of the organ's plane cuts
+at epsilon 0 were left joined).
 """
 
 from __future__ import annotations
@@ -436,11 +437,12 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
             if q > now + MIN_GAIN and least >= floor:
                 moves.append((q - now, v, w, lip, mirrored, weights, bends))
     moves.sort(key=lambda m: -m[0])
-    bent = [m for m in moves if m[6]]
+    bent = [i for i, m in enumerate(moves) if m[6]]
     if bent:  # asked at once: one query of the cut surface
-        allowed = may_bend([m[1] for m in bent], [[m[1]] + m[3] for m in bent], [m[5] for m in bent])
-        refused = {id(m) for m, ok in zip(bent, allowed) if not ok}
-        moves = [m for m in moves if id(m) not in refused]
+        allowed = may_bend([moves[i][1] for i in bent], [[moves[i][1]] + moves[i][3] for i in bent],
+                           [moves[i][5] for i in bent])
+        refused = {i for i, ok in zip(bent, allowed) if not ok}
+        moves = [m for i, m in enumerate(moves) if i not in refused]
     for _, v, w, lip, mirrored, weights, bends in moves:
         try:  # both checked before either moves (w's star does not hold v: the checks stand)
             checked = (check_vertex_move(topo, v, [v] + lip, weights, keep_boundary=not bends),
