@@ -153,6 +153,17 @@ def pyramid(bend: float = 0.0) -> TetMesh:
     return TetMesh(v, [[0, 1, 4, 2], [0, 1, 4, 3]], name=f"pyramid({bend})")
 
 
+def assert_separates(topo, plane, cutter) -> None:
+    """No piece (elements sharing a vertex move together) holds elements on both sides of a
+    complete plane cut, judged at ``cutter``'s tolerances."""
+    from wcut.cut.separation import plane_separation
+
+    after = topo.to_mesh()
+    separation = plane_separation(after.vertices, after.tets, plane, cutter.tolerance,
+                                  mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
+    assert separation.separated, separation.describe()
+
+
 def element_set(mesh: TetMesh, decimals: int = 12) -> list:
     """The elements as sorted tuples of rounded corner coordinates: equal for two meshes with
     the same elements, whatever the numbering of vertices and elements."""

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import load_tool
+from conftest import assert_separates, load_tool
 from wcut.cut import METHODS, CutError, Cutter, Plane, Polygon, SweptBlade, TriangleSurface
 from wcut.cut.cutter import CAP_HOLD, CRUMB_ELEMENTS, CRUMB_QUALITY, CRUMB_VOLUME, CURVED_HOLD, REGULAR_QUALITY
 from wcut.cut.surface import strip
@@ -40,14 +40,6 @@ def assert_separated(mesh, plane: Plane) -> None:
     labels = connected_components(mesh)
     side = _sides(mesh, plane)
     assert not set(labels[side > 0]) & set(labels[side < 0])
-
-
-def assert_separates(topo, plane: Plane, cutter) -> None:
-    """No piece (elements sharing a vertex move together) holds elements on both sides."""
-    after = topo.to_mesh()
-    separation = plane_separation(after.vertices, after.tets, plane, cutter.tolerance,
-                                  mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
-    assert separation.separated, separation.describe()
 
 
 @pytest.fixture(scope="module")
@@ -812,9 +804,7 @@ def test_plane_cuts_of_a_curved_surface_leave_no_needle_at_the_boundary():
         assert abs(after.volumes().sum() - volume) <= 1e-12 * volume
         assert dihedral_angles(after.vertices, after.tets).min() > 4.0
         assert after.volumes().min() > 1e-3 * median
-        separation = plane_separation(after.vertices, after.tets, plane, cutter.tolerance,
-                                      mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
-        assert separation.separated, separation.describe()
+        assert_separates(topo, plane, cutter)
 
 
 #: elements a progressive cut may add per element of the uncut mesh its swept surface crosses

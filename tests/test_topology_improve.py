@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import assert_separates
 from wcut.cut import Cutter, Plane
 from wcut.mesh import TetMesh, beam, dihedral_angles, perturbed
 from wcut.topology import TetTopology, check_topology
@@ -97,11 +98,7 @@ def test_a_cut_with_improvement_keeps_its_surface_and_separates(monkeypatch):
     y = plain.rest_positions[np.unique(plain.tets[plain.live_tets()])]
     on_plain = np.abs(plane.signed_distance(y)) <= cutter.tolerance
     assert on.sum() == on_plain.sum()
-    from wcut.cut.separation import plane_separation
-
-    mesh = improved.to_mesh()
-    assert plane_separation(mesh.vertices, mesh.tets, plane, cutter.tolerance,
-                            mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane).separated
+    assert_separates(improved, plane, cutter)
     assert _worst_angle(improved) >= _worst_angle(plain)
 
 
@@ -152,7 +149,7 @@ def test_sliding_on_the_wound_moves_both_lips_and_keeps_each_side(point, normal)
     the vertices inside the wound with their copies. The lips still meet (every vertex on the
     plane has its copy at the same rest position), the wound stays on the plane, each side keeps
     its volume, the mesh separates, and the worst angle rises above 3.5 degrees."""
-    from wcut.cut.separation import element_sides, plane_separation
+    from wcut.cut.separation import element_sides
 
     plane = Plane(point, normal)
     plain, improved = TetTopology(ORGAN), TetTopology(ORGAN)
@@ -163,9 +160,8 @@ def test_sliding_on_the_wound_moves_both_lips_and_keeps_each_side(point, normal)
     check_topology(improved, ORGAN.volumes().sum(), volume_tolerance=1e-12)
     before, after = plain.to_mesh(), improved.to_mesh()
     assert _worst_angle(plain) < 2.0 and _worst_angle(improved) > 3.5
-    for mesh in (before, after):
-        assert plane_separation(mesh.vertices, mesh.tets, plane, cutter.tolerance,
-                            mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane).separated
+    for topo in (plain, improved):
+        assert_separates(topo, plane, cutter)
     # each side's volume: to what the wound's slides sweep within the band a held vertex bent it to
     side_volumes = [[m.volumes()[element_sides(plane.signed_distance(m.vertices)[m.tets], cutter.tolerance)
                                  == side].sum() for side in (-1, 1)] for m in (before, after)]
@@ -240,7 +236,7 @@ def test_the_small_elements_a_cut_leaves_next_to_a_vertex_are_grown(point, norma
     moves suffice) until every element is above 1e-3 of it, without a worse worst angle than
     the cut alone leaves; the lips still meet face to face, each side keeps its volume and the
     cut separates."""
-    from wcut.cut.separation import element_sides, plane_separation
+    from wcut.cut.separation import element_sides
 
     median = float(np.median(ORGAN.volumes()))
     plane = Plane(point, normal)
@@ -251,8 +247,7 @@ def test_the_small_elements_a_cut_leaves_next_to_a_vertex_are_grown(point, norma
         stats = cutter.cut(plane).stats
         check_topology(topo, ORGAN.volumes().sum(), volume_tolerance=1e-12)
         mesh = topo.to_mesh()
-        assert plane_separation(mesh.vertices, mesh.tets, plane, cutter.tolerance,
-                            mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane).separated
+        assert_separates(topo, plane, cutter)
         smallest[improved], worst[improved] = float(mesh.volumes().min()) / median, _worst_angle(topo)
         side = element_sides(plane.signed_distance(mesh.vertices)[mesh.tets], cutter.tolerance)
         sides[improved] = [mesh.volumes()[side == s].sum() for s in (-1, 1)]
@@ -277,8 +272,6 @@ def test_a_wound_bent_by_a_held_vertex_slides_within_its_band(method, point, nor
     5 degrees (3.5 with Bielser's subdivision), no wound vertex ends farther from the plane than
     the cut alone left one, every vertex off the plane still has its copy at the same rest
     position, the volume is kept and the cut separates."""
-    from wcut.cut.separation import plane_separation
-
     plane = Plane(point, normal)
     reach = {}
     for improved in (False, True):
@@ -290,8 +283,7 @@ def test_a_wound_bent_by_a_held_vertex_slides_within_its_band(method, point, nor
         distance = np.abs(plane.signed_distance(topo.rest_positions[wound]))
         reach[improved] = float(distance.max())
         mesh = topo.to_mesh()
-        assert plane_separation(mesh.vertices, mesh.tets, plane, cutter.tolerance,
-                                mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane).separated
+        assert_separates(topo, plane, cutter)
     assert stats.slid_vertices > 0 and _worst_angle(topo) >= worst
     assert reach[True] <= reach[False] + cutter.tolerance
     used = np.unique(mesh.tets)
