@@ -1163,10 +1163,14 @@ class Cutter:
         coordinates, tolerance = self.coordinates(), self.tolerance
         band = CAP_HOLD * self.hold_distance * self.mean_edge_length + tolerance
 
+        def targets(parents: list[list[int]], weights: list[list[float]]) -> np.ndarray:
+            """(M, 3) where each move ends, in the cut's configuration (m)."""
+            return np.array([np.asarray(w) @ coordinates[u] for u, w in zip(parents, weights)])
+
         def off_the_cut(vertices: list[int], parents: list[list[int]], weights: list[list[float]]) -> np.ndarray:
             """Per move of ``vertices[i]``: it neither crosses the surface nor ends within its
             tolerance."""
-            p = np.array([np.asarray(w) @ coordinates[u] for u, w in zip(parents, weights)])
+            p = targets(parents, weights)
             t, _ = surface.crossings(coordinates[list(vertices)], p, tolerance)
             return np.isnan(t) & (surface.distance(p, tolerance) > tolerance)
 
@@ -1175,7 +1179,7 @@ class Cutter:
             this cut's (within the farthest a held vertex lies from the surface), and it ends no
             farther from the surface than the fan's farthest vertex: the surface stays within
             the band that holding a boundary vertex bent it to."""
-            p = np.array([np.asarray(w) @ coordinates[u] for u, w in zip(parents, weights)])
+            p = targets(parents, weights)
             fans = sorted({u for each in parents for u in each})
             reach = dict(zip(fans, surface.distance(coordinates[fans], band).tolist()))
             farthest = np.array([max(reach[u] for u in each) for each in parents])
