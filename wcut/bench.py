@@ -216,6 +216,11 @@ def load_ramp(t: float, duration: float) -> float:
     return r * r * (3.0 - 2.0 * r)
 
 
+def _mean_ms(seconds: list[float]) -> float:
+    """The mean (ms) of step times (s); 0 for none."""
+    return 1e3 * float(np.mean(seconds)) if seconds else 0.0
+
+
 def _settle(model, solver, tip: int, static: np.ndarray, load: np.ndarray, max_steps: int, ramp: float,
             early_steps: int = JACOBI_STEPS) -> dict:
     """Step from rest under the nodal forces ``load`` (N, 3) raised by :func:`load_ramp` over
@@ -243,9 +248,8 @@ def _settle(model, solver, tip: int, static: np.ndarray, load: np.ndarray, max_s
             solver.check()
         error = float(np.linalg.norm(state.particle_q.numpy()[tip] - rest - static))
         within = within + 1 if error <= 0.01 * size and fraction == 1.0 else 0
-    mean_ms = lambda values: 1e3 * float(np.mean(values)) if values else 0.0  # noqa: E731
-    return {"steps": len(seconds), "first_step_ms": 1e3 * seconds[0], "step_ms": mean_ms(seconds[1:]),
-            "iterations": float(np.mean(iterations)), "early_step_ms": mean_ms(seconds[1:early_steps]),
+    return {"steps": len(seconds), "first_step_ms": 1e3 * seconds[0], "step_ms": _mean_ms(seconds[1:]),
+            "iterations": float(np.mean(iterations)), "early_step_ms": _mean_ms(seconds[1:early_steps]),
             "early_iterations": float(np.mean(iterations[:early_steps])),
             "settled": within >= SETTLED_STEPS, "tip_error": error / size,
             "inverted": inverted_count(model, state.particle_q.numpy())}
