@@ -966,6 +966,9 @@ class Cutter:
         bit, for all of them at once."""
         totals, counts = _crossing_sums(keys, sampling.edges, sampling.on)
         means, halfway = totals / np.maximum(counts, 1)[:, None], 0.5 * totals + 0.5 / 3.0
+        if len(keys):
+            on = np.fromiter(sampling.on, dtype=np.int64, count=len(sampling.on))
+            counts[(counts == 2) & (np.isin(np.asarray(keys), on).sum(axis=1) == 1)] = 0  # a segment: no point
         return [(mean, True) if count >= 2 else None if count == 0 else (half, False)
                 for count, mean, half in zip(counts.tolist(), means, halfway)]
 
@@ -973,6 +976,8 @@ class Cutter:
         """Weights (over the sorted face vertices) of the point where a face is split, and
         whether it is on the cut: the barycentre of its crossings and on-vertices."""
         points = self._crossing_weights(list(key), sampling.edges, sampling.on)
+        if type(surface) is Plane and len(points) == 2 and sum(v in sampling.on for v in key) == 1:
+            return None  # the plane crosses the face from a vertex to the opposite edge: a segment
         if len(points) >= 2:  # _mean: np.mean(points, axis=0), without its overhead
             if type(surface) is Plane:  # a mean of points on a plane is on it: nothing to move
                 return np.array(_mean(points)), True
