@@ -314,3 +314,49 @@ def test_a_progressive_cut_contracts_only_vertices_it_made():
         assert used.all() and result.change.vertex_count_after == topo.vertex_count
         check_topology(topo, ORGAN.volumes().sum(), volume_tolerance=1e-12)
     assert contracted > 0
+
+
+#: the perturbed beam of tools/cut_separation.py: its outer faces are the box's, flat
+POOR_BEAM = perturbed(beam(8, 4, 4, size=(0.08, 0.04, 0.04)), 0.3, 0)
+
+
+@pytest.mark.parametrize("point, normal", [
+    ([0.053108103752817666, 0.018183982727383224, 0.020991873753461194],
+     [0.47329008528969163, 0.04573437199029375, 0.879718626826288]),
+    ([0.02216375031483861, 0.0173857261218884, 0.011697895443309361],
+     [0.19814050934380317, -0.5859319748724263, 0.7857633609294064])])
+def test_the_wound_slides_along_its_rim_on_a_flat_boundary(point, normal, monkeypatch):
+    """Plane cuts of a perturbed beam that leave their worst element at the rim, where the wound
+    meets a face of the box: the two copies of a rim vertex slide together along the rim, the
+    line where the two flat surfaces meet, which keeps both and each side's volume. The worst
+    angle rises from below 4.5 degrees (without the rim slides) to above 5."""
+    import wcut.topology.improve as improve_module
+    from wcut.cut.cutter import CAP_HOLD
+    from wcut.cut.separation import element_sides
+
+    plane = Plane(point, normal)
+
+    def cut(improve=True):
+        topo = TetTopology(POOR_BEAM)
+        cutter = Cutter(topo, epsilon=0.1, improve=improve)
+        cutter.cut(plane)
+        return topo, cutter
+
+    (plain, _), (topo, cutter) = cut(improve=False), cut()
+    check_topology(topo, POOR_BEAM.volumes().sum(), volume_tolerance=1e-12)
+    assert_separates(topo, plane, cutter)
+    assert _worst_angle(topo) > 5.0
+    mesh = topo.to_mesh()
+    corners = mesh.vertices[mesh.boundary().triangles]  # (F, 3, 3)
+    on_box = np.zeros(len(corners), dtype=bool)
+    for axis, size in enumerate((0.08, 0.04, 0.04)):
+        for value in (0.0, size):
+            on_box |= np.all(np.abs(corners[:, :, axis] - value) < 1e-12, axis=1)
+    band = CAP_HOLD * cutter.hold_distance * cutter.mean_edge_length + cutter.tolerance  # (held vertices bend it)
+    on_wound = np.abs(plane.signed_distance(corners.reshape(-1, 3))).reshape(-1, 3).max(axis=1) <= band
+    assert (on_box | on_wound).all()
+    side_volumes = [[m.volumes()[element_sides(plane.signed_distance(m.vertices)[m.tets], cutter.tolerance)
+                                 == side].sum() for side in (-1, 1)] for m in (plain.to_mesh(), mesh)]
+    np.testing.assert_allclose(side_volumes[1], side_volumes[0], rtol=1e-9)
+    monkeypatch.setattr(improve_module, "ALONG_RIM", ())
+    assert _worst_angle(cut()[0]) < 4.5
