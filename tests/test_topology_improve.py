@@ -137,6 +137,26 @@ def test_a_vertex_beside_a_face_near_its_plane_is_lifted_to_a_regular_height(sid
     assert _lifted(np.vstack([[0.2, 0.2, side], face])) is None
 
 
+def test_a_wedge_at_an_edge_through_the_vertex_is_smoothed_up_its_gradient():
+    """The worst element organ_cut left (3.77 degrees, its small angle at an edge through the
+    inner vertex, the other three on the wound): pushing the vertex from the opposite face
+    lowers the angle, and the vertex is too high above that face to be lifted. Steps up the
+    gradient of the element's measure raise it, as weights of the four corners summing to 1."""
+    from wcut.topology.improve import _ascent, _lifted
+
+    corners = np.array([[7.447729e-3, 11.909999e-3, 23.534779e-3], [1.159293e-3, 6.444888e-3, 17.805827e-3],
+                        [2.721087e-3, 6.282763e-3, 27.671387e-3], [1.902785e-3, 6.353606e-3, 26.026309e-3]])
+    before = min_sine(*corners.tolist())
+    assert math.degrees(math.asin(before)) == pytest.approx(3.77, abs=0.01)
+    pushed = np.array([1.25, -0.25 / 3.0, -0.25 / 3.0, -0.25 / 3.0]) @ corners
+    assert min_sine(pushed, *corners[1:].tolist()) < before and _lifted(corners) is None
+    steps = _ascent(corners, None)
+    assert len(steps) == 2
+    for weights in steps:
+        assert sum(weights) == pytest.approx(1.0)
+        assert min_sine(np.asarray(weights) @ corners, *corners[1:].tolist()) > before + 1e-3
+
+
 ORGAN = TetMesh.load(Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "organ.vtu")
 
 

@@ -10,7 +10,9 @@ improves the elements a change made, and their neighbours, in the rest configura
   flip of a face (``flip23``);
 - *smoothing*: a vertex moves towards the centroid of its neighbours, or away from the
   opposite face of its worst element, or straight off that face's plane to the height of a
-  regular element on it (a cap beside the face), within its star (``move_vertex``, whose state
+  regular element on it (a cap beside the face), or, where none of these helps, up the
+  gradient of its worst element's measure (on ``organ_cut`` the worst angle after any cut
+  event rises from 3.1 to 4.2 degrees), within its star (``move_vertex``, whose state
   is carried by interpolation in the change record). A boundary vertex moves only within a
   flat boundary (there the move keeps the boundary and the volume to rounding); *frozen*
   vertices (on the cut surface, its lips) never move alone;
@@ -88,6 +90,10 @@ STEPS = (1.0, 0.5, 0.25)
 #: Sliding also tries moving a vertex away from its nearest neighbour on the lip by these
 #: multiples of their distance.
 AWAY = (1.0, 0.5)
+
+#: Smoothing also tries the vertex moved up the gradient of its worst element's measure by
+#: these multiples of that element's mean edge at the vertex (:func:`_ascent`).
+ASCENT = (0.2, 0.04)
 
 #: A vertex at the rim of the wound slides along an edge it shares with both lips by these
 #: fractions of the edge (towards its other end, or away from it): a move that stays on a
@@ -222,6 +228,7 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
             made = (twins and _slide(topo, t, twins, pinned, sine, stats, may_bend)) \
                 or _flip_edges(topo, t, unflipped, accept, stats) or _flip_faces(topo, t, unflipped, accept, stats) \
                 or _smooth(topo, t, frozen, sine, stats, may_move) \
+                or _smooth(topo, t, frozen, sine, stats, may_move, ascent=True) \
                 or (contract and _contract(topo, t, frozen, twins or {}, pinned, accept, stats))
             if made:
                 moves += 1
@@ -343,7 +350,8 @@ def _flip_faces(topo: TetTopology, t: int, frozen: set[int], accept, stats: Impr
     return []
 
 
-def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats, may_move=None) -> list[int]:
+def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats, may_move=None,
+            ascent: bool = False) -> list[int]:
     """Move one vertex of element t to where the worst sine of its star rises most (the best
     move that ``move_vertex`` accepts)."""
     rest = topo.rest_positions
@@ -354,7 +362,7 @@ def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: Im
         star = sorted(topo.vertex_tets[v])
         now, floor = min(sine(s) for s in star), sine.floor(star)
         tried = [_merge([v] + parents, [1.0 - step] + [step * x for x in weights])
-                 for parents, weights in _candidates(topo, v, star, sine) for step in STEPS]
+                 for parents, weights in _candidates(topo, v, star, sine, ascent) for step in STEPS]
         if not tried:
             continue
         targets = np.array([np.asarray(w) @ rest[full] for full, w in tried])
@@ -499,7 +507,7 @@ def _star_sines(sine: _Sines, star: list[int], moved, targets: np.ndarray) -> tu
     return measure.min(axis=1).tolist(), least.min(axis=1).tolist()
 
 
-def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
+def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines, ascent: bool = False):
     """Target positions of vertex v as combinations (parents, weights summing to 1) of
     vertices: the centroid of its neighbours (of its boundary neighbours for a boundary
     vertex, which keeps it in a flat boundary's plane) and, inside, v pushed away from the
@@ -507,6 +515,13 @@ def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
     centroid, and lifted off that face's plane (:func:`_lifted`)."""
     on_boundary = _boundary_neighbours(topo, v)
     boundary = bool(on_boundary)
+    if ascent:
+        if not boundary:
+            worst = min(star, key=sine)
+            face = [u for u in topo.tets[worst].tolist() if u != v]
+            for weights in _ascent(topo.rest_positions[[v] + face], sine.volume_scale):
+                yield [v] + face, weights
+        return
     neighbours = sorted({u for s in star for u in topo.tets[s].tolist()} - {v})
     if boundary:
         neighbours = [u for u in neighbours if u in on_boundary]
@@ -519,6 +534,27 @@ def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
         lifted = _lifted(topo.rest_positions[[v] + face])
         if lifted is not None:
             yield [v] + face, lifted
+
+
+def _ascent(corners: np.ndarray, volume_scale: float | None) -> list[list[float]]:
+    """Weights (of the corners (4, 3), vertex first) of the vertex moved up the gradient of the
+    element's measure (:func:`min_sine` with ``volume_scale``) by each of :data:`ASCENT` times
+    its mean edge: the steepest ascent of Klingner and Shewchuk's smoothing for the worst
+    element, which finds the way out of a wedge whose small angle lies at an edge through the
+    vertex, where the centroid, the push and the lift all lower it. Empty where the gradient
+    vanishes."""
+    edge = float(np.linalg.norm(corners[1:] - corners[0], axis=1).mean())
+    delta = 1e-7 * edge
+    probes = np.repeat(corners[None], 4, axis=0)
+    probes[1:, 0] += delta * np.eye(3)
+    measure = _sines(probes, volume_scale)[0]
+    gradient = (measure[1:] - measure[0]) / delta
+    length = float(np.linalg.norm(gradient))
+    frame = (corners[1:] - corners[0]).T
+    if not length > 0.0 or not np.isfinite(length) or np.linalg.det(frame) == 0.0:
+        return []
+    local = np.linalg.solve(frame, np.outer(gradient / length, np.multiply(ASCENT, edge)))  # (3, K)
+    return [[1.0 - float(column.sum())] + column.tolist() for column in local.T]
 
 
 def _lifted(corners: np.ndarray) -> list[float] | None:
