@@ -18,7 +18,9 @@ The ``paulus`` method (thesis 5.1):
    *extension* (5.1.1, 5.3), and that vertex is not on the cut;
 4. *2-3 flips* (figure 5.2) of every interior face through a crossed edge; where a flip would
    invert an element the face is split at the barycentre of its crossings instead;
-   *1-3 splits* (figure 5.5) of boundary faces through a crossed edge;
+   *1-3 splits* (figure 5.5) of boundary faces through a crossed edge. A face that a plane
+   crosses from one of its vertices to the opposite edge is not split: the cut there is the
+   segment to the crossing, an edge once step 5 has split or flipped the crossed edge;
 5. *general flips* (figure 5.3) of every crossed edge, which leaves triangles on the surface;
    a boundary edge is flipped only where its two boundary faces are coplanar (the volume is
    kept), else *bisected* at the crossing (5.1.2), as is any edge whose flip is refused;
@@ -974,7 +976,8 @@ class Cutter:
 
     def _face_point(self, surface, sampling, key):
         """Weights (over the sorted face vertices) of the point where a face is split, and
-        whether it is on the cut: the barycentre of its crossings and on-vertices."""
+        whether it is on the cut: the barycentre of its crossings and on-vertices; None where
+        there is nothing to split (no crossing, or a plane's segment from a vertex)."""
         points = self._crossing_weights(list(key), sampling.edges, sampling.on)
         if type(surface) is Plane and len(points) == 2 and sum(v in sampling.on for v in key) == 1:
             return None  # the plane crosses the face from a vertex to the opposite edge: a segment
