@@ -115,7 +115,7 @@ CAP_HOLD = 2.0
 #: this many times the improvement's smallest volume holds the cut (:meth:`Cutter._hold`).
 #: Holding at the smallest volume alone left elements of 2.6e-4 to 9.9e-4 of the median on
 #: SOFA's meshes, and 3.4e-4 on every plane cut of the organ with ``curved_boundary``; this
-#: leaves 8e-4 to 1.9e-3, and 1.1e-3.
+#: leaves 8e-4 to 2e-3, and 1.1e-3.
 CORNER_PIECES = 3.0
 
 
@@ -246,14 +246,15 @@ class Cutter:
             smallest dihedral angle is below 6 degrees, or below the input mesh's worst where
             that is smaller, or whose rest volume is below 2e-3 of the input's median element,
             or below its smallest where that is smaller (:mod:`wcut.topology.improve`): the
-            vertices inside the wound slide on it with their copies, the others move, edges and
-            faces flip, and edges whose end the cut made contract; the cut surface (where a
+            vertices inside the wound slide on it with their copies (those at the rim along a
+            straight rim), the others move, edges and faces flip, and edges whose end the cut
+            made contract; the cut surface (where a
             held boundary vertex bends it: within the band it spans there), the boundary, the
             lips' match and the volume stay as they are; no flip, slide or contraction
             rearranges the elements a progressive blade is still in, though smoothing may move
-            their vertices (16 straight blades through the organ: 77 increments of 145 left an
-            angle below 5 degrees, 84 with those vertices kept). On by default; it costs some
-            3 ms per increment of ``organ_cut``'s blade and 30 ms per plane cut of the organ at
+            their vertices (16 straight blades through the organ: 10 increments of 145 leave an
+            angle below 5 degrees). On by default; it costs some
+            2 ms per increment of ``organ_cut``'s blade and 20 ms per plane cut of the organ at
             epsilon 0.1 (``tools/cut_separation.py``). The corners of quadratic
             elements are improved only where every element is straight
             (:class:`~wcut.cut.quadratic.QuadraticCutter`).

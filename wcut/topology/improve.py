@@ -27,12 +27,12 @@ improves the elements a change made, and their neighbours, in the rest configura
   the slide sweeps. A vertex at the wound's rim, where it meets the outer boundary, slides with
   its copy along an edge both lips share, where the rim is the straight line of a flat outer
   boundary and a flat wound (on the perturbed beam's 80 random plane cuts, those below 5
-  degrees fall from 3 to 1). A cut leaves its worst elements where the split point of an element lies a
-  few hundredths of an edge from the split point of one of its faces (a plane passing close to
-  an edge); sliding moves them apart: on ten random plane cuts of the organ, the worst dihedral
-  angle rises from 1.5-4.0 to 4.3-5.2 degrees by sliding in flat fans alone, and over 20 cuts
-  from 3.76 to 5.13 with bent fans too. Sliding comes first: flips and smoothing before it left
-  the worst at 3.1 degrees;
+  degrees fall from 3 to 1). A cut leaves its worst elements where the split point of an
+  element lies a few hundredths of an edge from the split point of one of its faces (a plane
+  passing close to an edge); sliding moves them apart: on ten random plane cuts of the organ,
+  the worst dihedral angle rises from 1.5-4.0 to 4.3-5.2 degrees by sliding in flat fans alone,
+  and over 20 cuts from 3.76 to 5.13 with bent fans too. Sliding comes first: flips and
+  smoothing before it left the worst at 3.1 degrees;
 - *edge contraction*, where nothing else helps: a vertex the change made merges into a
   neighbour (``contract_edge``), the elements on their edge go and the others around it take
   the neighbour instead; a vertex inside the wound only together with its twin, into the
@@ -442,7 +442,7 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
         theirs = _boundary_neighbours(topo, w)
         if not lip:
             continue
-        if theirs.issuperset(mirrored):
+        if theirs.issuperset(mirrored):  # inside the wound: towards the centroid, or away
             nearest = min(range(len(lip)), key=lambda i: _norm(_sub(rest[lip[i]], rest[v])))
             targets = [[1.0 - step] + [step / len(lip)] * len(lip) for step in STEPS]
             targets += [_along(len(lip), nearest, -a) for a in AWAY]  # from the nearest neighbour
@@ -512,7 +512,8 @@ def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines, ascent
     vertices: the centroid of its neighbours (of its boundary neighbours for a boundary
     vertex, which keeps it in a flat boundary's plane) and, inside, v pushed away from the
     face opposite it in its worst element by a quarter of its distance from that face's
-    centroid, and lifted off that face's plane (:func:`_lifted`)."""
+    centroid, and lifted off that face's plane (:func:`_lifted`). With ``ascent``, instead:
+    an inner v moved up the gradient of its worst element's measure (:func:`_ascent`)."""
     on_boundary = _boundary_neighbours(topo, v)
     boundary = bool(on_boundary)
     if ascent:
