@@ -874,8 +874,8 @@ def test_a_curved_boundary_holds_the_cut_off_a_corner_too_small_for_its_pieces(p
     a corner the plane cuts off one stays as small as the cut makes its pieces: the three or
     more elements around the element's split point. Holding the cut where the corner is below
     CORNER_PIECES times the smallest volume keeps them above 1e-3 of the median on these organ
-    planes; at the smallest volume alone (``pieces`` 1) every one of them left an element of
-    3.4e-4 to 5.3e-4."""
+    planes (1.3e-3 to 1.8e-3); at the smallest volume alone (``pieces`` 1) every one of them
+    left an element of 4.5e-4 to 5.3e-4."""
     import wcut.cut.cutter as cutter_module
 
     monkeypatch.setattr(cutter_module, "CORNER_PIECES", pieces)
