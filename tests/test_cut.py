@@ -825,6 +825,28 @@ def test_crossing_sums_are_the_means_of_the_listed_points_to_the_bit(seed, k):
             assert np.array_equal(total / count, np.array(_mean(points)))
 
 
+def test_a_small_face_between_large_elements_on_either_side_of_a_fine_surface_opens():
+    """A face of 1 mm on S (the plane z = 0 in triangles of 1 mm, as a blade's increments
+    triangulate it) between two elements whose centroids lie 20 mm above and below: the
+    triangles of S within eight face radii subtend a few per cent of a half-space at the
+    centroids, so the winding number seemed to change by less than a half and the face stayed
+    sewn (a progressive cut left a beam joined this way). Within eight times the centroids'
+    distance, it changes by nearly one: the face opens."""
+    cells = 100
+    grid = np.linspace(-0.05, 0.05, cells + 1)
+    x, y = np.meshgrid(grid, grid, indexing="ij")
+    r, c = np.divmod(np.arange(cells * cells), cells)
+    v0 = r * (cells + 1) + c
+    surface = TriangleSurface(np.c_[x.ravel(), y.ravel(), np.zeros(x.size)],
+                              np.r_[np.c_[v0, v0 + cells + 1, v0 + cells + 2], np.c_[v0, v0 + cells + 2, v0 + 1]])
+    face = np.array([[[0.0, 0.0, 0.0], [0.001, 0.0, 0.0], [0.0, 0.001, 0.0]]])
+    centroids = np.array([[[0.0003, 0.0003, 0.02], [0.0003, 0.0003, -0.02]]])
+    same_side = np.array([[[0.0003, 0.0003, 0.02], [0.0003, 0.0003, 0.001]]])
+    cutter = Cutter(TetTopology(beam(1, 1, 1)))
+    assert cutter._on_surface(surface, face, centroids).tolist() == [True]
+    assert cutter._on_surface(surface, face, same_side).tolist() == [False]
+
+
 def test_a_face_across_the_inner_corner_of_a_fold_opens():
     """A blade turning by 56 degrees inside an 8 x 8 x 1 plate (a path of tools/cut_turns.py),
     in two increments per leg: at the turn, a face with its three vertices on the two sheets

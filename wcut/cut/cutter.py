@@ -88,10 +88,10 @@ REGULAR_QUALITY = 1.0 / (6.0 * np.sqrt(2.0))
 QUALITY_DROP = 0.1
 
 
-#: Triangles of S within this many face radii of a face decide whether the face separates the
-#: elements it joins (:meth:`Cutter._on_surface`): far enough that cutting S off there changes
-#: the jump of its winding number between the two centroids by a few per cent, near enough to stay
-#: local.
+#: Triangles of S within this many face radii of a face (or distances from its centre to the
+#: centroids of the elements it joins, where larger) decide whether the face separates them
+#: (:meth:`Cutter._on_surface`): far enough that cutting S off there changes the jump of its
+#: winding number between the two centroids by a few per cent, near enough to stay local.
 WINDING_REACH = 8.0
 
 #: Snapping threshold (relative) applied even when ``epsilon`` is smaller: crossings closer
@@ -1056,14 +1056,17 @@ class Cutter:
         On a triangulated S, whose faces are chords where S bends or folds, a face opens when it
         separates the two elements it joins, whose ``centroids`` (F, 2, 3) (m) lie on opposite
         sides of S: the local winding number of S (:meth:`TriangleSurface.winding_jumps`, over
-        the triangles within :data:`WINDING_REACH` face radii) changes by more than a half
+        the triangles within :data:`WINDING_REACH` times the face's radius, or the distance
+        from its centre to the centroids where that is larger) changes by more than a half
         between them. A face across the inner corner of a fold (vertices on both sheets, centre
         off S) then opens, and one between two sheets, with both elements on the same side,
         stays sewn, whatever the distance of their centres. A flat element lying in S stays
         with the side its centroid is on (the faces to the other side open) instead of coming
         loose."""
         if isinstance(surface, TriangleSurface):
-            size = np.linalg.norm(corners - corners.mean(axis=1)[:, None], axis=2).max(axis=1)
+            centre = corners.mean(axis=1)
+            size = np.maximum(np.linalg.norm(corners - centre[:, None], axis=2).max(axis=1),
+                              np.linalg.norm(centroids - centre[:, None], axis=2).max(axis=1))
             jumps = surface.winding_jumps(centroids[:, 0], centroids[:, 1], WINDING_REACH * size)
             return np.abs(jumps) > 0.5
         centre = corners.mean(axis=1)
