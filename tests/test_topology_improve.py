@@ -137,6 +137,29 @@ def test_a_vertex_beside_a_face_near_its_plane_is_lifted_to_a_regular_height(sid
     assert _lifted(np.vstack([[0.2, 0.2, side], face])) is None
 
 
+@pytest.mark.parametrize("along", (True, False))
+def test_a_vertex_on_a_straight_crease_of_the_boundary_moves_along_it(along, monkeypatch):
+    """A vertex on an edge of a box (where two of its faces meet), moved along that edge close
+    to its neighbour: the elements there are needles of 4.5 degrees. Smoothing moves it back
+    along the crease, which keeps both faces and the volume (its own candidates, the centroid of
+    its boundary neighbours, leave the crease); without moves along edges the worst stays below
+    6 degrees."""
+    import wcut.topology.improve as improve_module
+
+    if not along:
+        monkeypatch.setattr(improve_module, "ALONG_EDGE", ())
+    box = beam(4, 4, 4, size=(0.04, 0.04, 0.04))
+    x = box.vertices.copy()
+    v = int(np.flatnonzero(np.all(np.abs(x - [0.02, 0.0, 0.0]) < 1e-12, axis=1))[0])  # on the edge y = z = 0
+    x[v, 0] += 0.0085
+    mesh = TetMesh(x, box.tets)
+    topo = TetTopology(mesh)
+    improve(topo, range(mesh.tet_count), frozen=set())
+    check_topology(topo, box.volumes().sum(), volume_tolerance=1e-12)
+    assert topo.rest_positions[v, 1] == 0.0 and topo.rest_positions[v, 2] == 0.0
+    assert (_worst_angle(topo) > 30.0) == along and _worst_angle(topo) > 4.5
+
+
 def test_a_wedge_at_an_edge_through_the_vertex_is_smoothed_up_its_gradient():
     """The worst element organ_cut left (3.77 degrees, its small angle at an edge through the
     inner vertex, the other three on the wound): pushing the vertex from the opposite face
@@ -378,5 +401,5 @@ def test_the_wound_slides_along_its_rim_on_a_flat_boundary(point, normal, monkey
     side_volumes = [[m.volumes()[element_sides(plane.signed_distance(m.vertices)[m.tets], cutter.tolerance)
                                  == side].sum() for side in (-1, 1)] for m in (plain.to_mesh(), mesh)]
     np.testing.assert_allclose(side_volumes[1], side_volumes[0], rtol=1e-9)
-    monkeypatch.setattr(improve_module, "ALONG_RIM", ())
+    monkeypatch.setattr(improve_module, "ALONG_EDGE", ())
     assert _worst_angle(cut()[0]) < 4.5

@@ -14,7 +14,9 @@ improves the elements a change made, and their neighbours, in the rest configura
   gradient of its worst element's measure (on ``organ_cut`` the worst angle after any cut
   event rises from 3.1 to 4.2 degrees), within its star (``move_vertex``, whose state
   is carried by interpolation in the change record). A boundary vertex moves only within a
-  flat boundary (there the move keeps the boundary and the volume to rounding); *frozen*
+  flat boundary, or, on a crease where two flat boundaries meet, along its edges (the move
+  keeps the boundary and the volume to rounding; on 16 random blades through the perturbed
+  beam, the smallest element rises from 3.7e-4 to 1.2e-3 of the median); *frozen*
   vertices (on the cut surface, its lips) never move alone;
 - *sliding on the cut*: a vertex inside the wound and its copy on the other lip (*twins*, at
   the same rest position) move together towards the centroid of their neighbours on the lip,
@@ -68,7 +70,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .mesh import TetTopology, TopologyError, face_key
-from .operators import apply_contraction, check_contraction, check_vertex_move, flip23, move_vertex, remove_edge
+from .operators import (apply_contraction, boundary_normals, check_contraction, check_vertex_move, flip23, move_vertex,
+                        remove_edge)
 
 #: Elements whose smallest dihedral angle is below this (degrees) are improved.
 TARGET_ANGLE = 6.0
@@ -95,10 +98,10 @@ AWAY = (1.0, 0.5)
 #: these multiples of that element's mean edge at the vertex (:func:`_ascent`).
 ASCENT = (0.2, 0.04)
 
-#: A vertex at the rim of the wound slides along an edge it shares with both lips by these
-#: fractions of the edge (towards its other end, or away from it): a move that stays on a
-#: straight crease of a flat outer boundary and of the wound keeps both.
-ALONG_RIM = (0.5, 0.25, -0.25, -0.5)
+#: A vertex at the rim of the wound (with its copy), and one on the outer boundary, also move
+#: along an edge by these fractions of it (towards its other end, or away from it): on a
+#: straight crease, the line where two flat surfaces meet, such a move keeps both.
+ALONG_EDGE = (0.5, 0.25, -0.25, -0.5)
 
 #: The six edges of a tetrahedron, as local vertex pairs.
 _EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
@@ -425,7 +428,7 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
            may_bend=None) -> list[int]:
     """Move a vertex of element t inside the wound and its twin on the other lip together,
     towards the centroid of its neighbours on its lip (the twins of those on the other), or a
-    vertex at the rim with its twin along an edge both lips share (:data:`ALONG_RIM`), to where
+    vertex at the rim with its twin along an edge both lips share (:data:`ALONG_EDGE`), to where
     the worst sine of both stars rises most; both moves must be ones ``move_vertex`` accepts:
     within the flat fans of the lips (and, at the rim, of the outer boundary), or, for a vertex
     whose every boundary face is a lip's (:func:`_inside_wound`), off their planes where
@@ -449,7 +452,7 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
         else:  # at the rim, where the wound meets the outer boundary: along an edge both lips share
             shared = [i for i, u in enumerate(mirrored) if u in theirs]
             lip, mirrored = [lip[i] for i in shared], [mirrored[i] for i in shared]
-            targets = [_along(len(lip), i, f) for i in range(len(lip)) for f in ALONG_RIM]
+            targets = [_along(len(lip), i, f) for i in range(len(lip)) for f in ALONG_EDGE]
         if not targets:
             continue  # the lips' fans around v and w share no edge (they do not match)
         bends = may_bend is not None and _inside_wound(topo, v, w, twins)
@@ -510,7 +513,8 @@ def _star_sines(sine: _Sines, star: list[int], moved, targets: np.ndarray) -> tu
 def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines, ascent: bool = False):
     """Target positions of vertex v as combinations (parents, weights summing to 1) of
     vertices: the centroid of its neighbours (of its boundary neighbours for a boundary
-    vertex, which keeps it in a flat boundary's plane) and, inside, v pushed away from the
+    vertex, which keeps it in a flat boundary's plane, and, on a crease (:func:`_on_crease`),
+    along each edge to one of them by :data:`ALONG_EDGE`) and, inside, v pushed away from the
     face opposite it in its worst element by a quarter of its distance from that face's
     centroid, and lifted off that face's plane (:func:`_lifted`). With ``ascent``, instead:
     an inner v moved up the gradient of its worst element's measure (:func:`_ascent`)."""
@@ -528,13 +532,27 @@ def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines, ascent
         neighbours = [u for u in neighbours if u in on_boundary]
     if neighbours:
         yield neighbours, [1.0 / len(neighbours)] * len(neighbours)
-    if not boundary:
-        worst = min(star, key=sine)
-        face = [u for u in topo.tets[worst].tolist() if u != v]
-        yield [v] + face, [1.25] + [-0.25 / 3.0] * 3
-        lifted = _lifted(topo.rest_positions[[v] + face])
-        if lifted is not None:
-            yield [v] + face, lifted
+    if boundary:
+        if _on_crease(topo, v):  # along its boundary edges: the way to move on a crease
+            for u in neighbours:
+                for f in ALONG_EDGE:
+                    yield [v, u], [1.0 - f, f]
+        return
+    worst = min(star, key=sine)
+    face = [u for u in topo.tets[worst].tolist() if u != v]
+    yield [v] + face, [1.25] + [-0.25 / 3.0] * 3
+    lifted = _lifted(topo.rest_positions[[v] + face])
+    if lifted is not None:
+        yield [v] + face, lifted
+
+
+def _on_crease(topo: TetTopology, v: int) -> bool:
+    """Whether boundary vertex v's boundary faces lie in exactly two planes: on their straight
+    line of intersection it may move along its edges. (Flat-boundary vertices moving along
+    their edges, too, left edges across a blade's swept surface on a plate.)"""
+    normals = boundary_normals(topo, v)
+    other = normals[normals @ normals[0] < 1.0 - 1e-12]
+    return len(other) > 0 and bool((other @ other[0] > 1.0 - 1e-12).all())
 
 
 def _ascent(corners: np.ndarray, volume_scale: float | None) -> list[list[float]]:
