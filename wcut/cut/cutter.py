@@ -53,7 +53,7 @@ from ..topology.improve import TARGET_ANGLE as IMPROVE_TARGET
 from ..topology.improve import has_poor
 from ..topology.improve import improve as improve_mesh
 from ..topology.mesh import signed_volume
-from ..topology.operators import boundary_normals, check_vertex_move
+from ..topology.operators import boundary_plane_count, check_vertex_move
 from ..topology.region import OUTSIDE, TetRegion
 from .separation import IN_PLANE, element_sides
 from .surface import CutSurface, Plane, TriangleSurface, box_tree
@@ -199,14 +199,6 @@ class _Sampling:
         hit = np.isfinite(t)
         self.edges = {(a, b): (s, n) for (a, b), s, n in zip(edges[hit].tolist(), t[hit].tolist(), normal[hit])}
         self.cut_slots = slots[hit[inverse.reshape(-1)].reshape(-1, 6).any(axis=1)].tolist()
-
-
-def _may_slide(topo: TetTopology, v: int) -> bool:
-    """Whether boundary vertex v's boundary faces lie in one plane or in two (a flat boundary or
-    a straight crease, along which it may move)."""
-    normals = boundary_normals(topo, v)
-    other = normals[normals @ normals[0] < 1.0 - 1e-12]
-    return bool(len(other) == 0 or (other @ other[0] > 1.0 - 1e-12).all())
 
 
 def _edge(a: int, b: int) -> tuple[int, int]:
@@ -537,7 +529,7 @@ class Cutter:
         :data:`CORNER_PIECES` times that where v may not move (a curved boundary: the corner's
         pieces stay as small as the cut makes them)."""
         least = self.least_corner
-        if self.curved_boundary or not _may_slide(self.topology, v):
+        if self.curved_boundary or boundary_plane_count(self.topology, v) > 2:
             least *= CORNER_PIECES
         for t in self.topology.vertex_tets[v]:
             others = [u for u in self.topology.tets[t].tolist() if u != v]

@@ -70,8 +70,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .mesh import TetTopology, TopologyError, face_key
-from .operators import (apply_contraction, boundary_normals, check_contraction, check_vertex_move, flip23, move_vertex,
-                        remove_edge)
+from .operators import (apply_contraction, boundary_plane_count, check_contraction, check_vertex_move, flip23,
+                        move_vertex, remove_edge)
 
 #: Elements whose smallest dihedral angle is below this (degrees) are improved.
 TARGET_ANGLE = 6.0
@@ -513,8 +513,8 @@ def _star_sines(sine: _Sines, star: list[int], moved, targets: np.ndarray) -> tu
 def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines, ascent: bool = False):
     """Target positions of vertex v as combinations (parents, weights summing to 1) of
     vertices: the centroid of its neighbours (of its boundary neighbours for a boundary
-    vertex, which keeps it in a flat boundary's plane, and, on a crease (:func:`_on_crease`),
-    along each edge to one of them by :data:`ALONG_EDGE`) and, inside, v pushed away from the
+    vertex, which keeps it in a flat boundary's plane, and, on a crease of two planes, along
+    each edge to one of them by :data:`ALONG_EDGE`) and, inside, v pushed away from the
     face opposite it in its worst element by a quarter of its distance from that face's
     centroid, and lifted off that face's plane (:func:`_lifted`). With ``ascent``, instead:
     an inner v moved up the gradient of its worst element's measure (:func:`_ascent`)."""
@@ -533,7 +533,9 @@ def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines, ascent
     if neighbours:
         yield neighbours, [1.0 / len(neighbours)] * len(neighbours)
     if boundary:
-        if _on_crease(topo, v):  # along its boundary edges: the way to move on a crease
+        # along its edges on a crease (vertices of a flat boundary moving along their edges
+        # left an edge across a blade's swept surface on a plate)
+        if boundary_plane_count(topo, v) == 2:
             for u in neighbours:
                 for f in ALONG_EDGE:
                     yield [v, u], [1.0 - f, f]
@@ -544,15 +546,6 @@ def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines, ascent
     lifted = _lifted(topo.rest_positions[[v] + face])
     if lifted is not None:
         yield [v] + face, lifted
-
-
-def _on_crease(topo: TetTopology, v: int) -> bool:
-    """Whether boundary vertex v's boundary faces lie in exactly two planes: on their straight
-    line of intersection it may move along its edges. (Flat-boundary vertices moving along
-    their edges, too, left edges across a blade's swept surface on a plate.)"""
-    normals = boundary_normals(topo, v)
-    other = normals[normals @ normals[0] < 1.0 - 1e-12]
-    return len(other) > 0 and bool((other @ other[0] > 1.0 - 1e-12).all())
 
 
 def _ascent(corners: np.ndarray, volume_scale: float | None) -> list[list[float]]:

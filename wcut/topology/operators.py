@@ -561,6 +561,18 @@ def boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
     return np.array(normals).reshape(-1, 3)
 
 
+def boundary_plane_count(topo: TetTopology, v: int) -> int:
+    """The number of distinct planes of the boundary faces around vertex v, counted up to three
+    (0 for an inner vertex): 1 on a flat boundary, 2 on a straight crease (where v may move
+    along the line the planes share), 3 where it may not move at all."""
+    normals = boundary_normals(topo, v)
+    count = 0
+    while len(normals) and count < 3:
+        normals = normals[normals @ normals[0] < 1.0 - 1e-12]
+        count += 1
+    return count
+
+
 def _unit_normal(p0, p1, p2) -> tuple[float, float, float]:
     """Unit normal of triangle p0 p1 p2 (right-hand rule)."""
     ax, ay, az = p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]
