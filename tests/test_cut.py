@@ -454,12 +454,13 @@ POOR_VOLUME = POOR.volumes().sum()
 
 
 @st.composite
-def poor_planes(draw):
+def element_planes(draw, mesh: TetMesh):
+    """Planes through a random element of ``mesh``: through its centroid, a vertex, an edge or a face."""
     normal = np.array(draw(st.tuples(*[st.floats(-1, 1)] * 3)))
     if np.linalg.norm(normal) < 0.1:
         normal = np.array([0.2, 1.0, -0.3])
-    t = draw(st.integers(0, POOR.tet_count - 1))
-    corners = POOR.vertices[POOR.tets[t]]
+    t = draw(st.integers(0, mesh.tet_count - 1))
+    corners = mesh.vertices[mesh.tets[t]]
     kind = draw(st.sampled_from(["random", "vertex", "edge", "face"]))
     point = corners.mean(axis=0) if kind == "random" else corners[0]
     if kind == "edge":
@@ -471,7 +472,7 @@ def poor_planes(draw):
 
 @settings(max_examples=30, deadline=None, derandomize=True, database=None,
           suppress_health_check=[HealthCheck.too_slow])
-@given(plane=poor_planes(), method=st.sampled_from(REMESHING), epsilon=st.sampled_from([0.0, 0.1, 0.3]))
+@given(plane=element_planes(POOR), method=st.sampled_from(REMESHING), epsilon=st.sampled_from([0.0, 0.1, 0.3]))
 def test_a_plane_cut_through_poor_elements_separates_and_keeps_the_volume(plane, method, epsilon):
     topo = TetTopology(POOR)
     cutter = Cutter(topo, method=method, epsilon=epsilon)
@@ -484,25 +485,9 @@ def test_a_plane_cut_through_poor_elements_separates_and_keeps_the_volume(plane,
 FAIR = perturbed(beam(8, 4, 4, size=(0.08, 0.04, 0.04)), 0.3, seed=0)
 
 
-@st.composite
-def fair_planes(draw):
-    """Planes through a random element of FAIR's: through its centroid, a vertex, an edge or a face."""
-    normal = np.array(draw(st.tuples(*[st.floats(-1, 1)] * 3)))
-    if np.linalg.norm(normal) < 0.1:
-        normal = np.array([0.2, 1.0, -0.3])
-    corners = FAIR.vertices[FAIR.tets[draw(st.integers(0, FAIR.tet_count - 1))]]
-    kind = draw(st.sampled_from(["random", "vertex", "edge", "face"]))
-    point = corners.mean(axis=0) if kind == "random" else corners[0]
-    if kind == "edge":
-        normal = np.cross(corners[1] - corners[0], normal)
-    elif kind == "face":
-        normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
-    return Plane(point, normal if np.linalg.norm(normal) > 1e-12 else [0.2, 1.0, -0.3])
-
-
 @settings(max_examples=30, deadline=None, derandomize=True, database=None,
           suppress_health_check=[HealthCheck.too_slow])
-@given(plane=fair_planes())
+@given(plane=element_planes(FAIR))
 def test_a_plane_cut_of_fair_elements_leaves_fair_elements(plane):
     """A paulus cut at epsilon 0.1 of a beam whose worst angle is 10.9 degrees: the smallest
     element is at least 1e-3 of the median, and the worst dihedral angle at least 4 degrees
@@ -521,7 +506,7 @@ def test_a_plane_cut_of_fair_elements_leaves_fair_elements(plane):
 
 @settings(max_examples=6, deadline=None, derandomize=True, database=None,
           suppress_health_check=[HealthCheck.too_slow])
-@given(chain=st.lists(poor_planes(), min_size=5, max_size=5), method=st.sampled_from(["paulus", "bielser"]),
+@given(chain=st.lists(element_planes(POOR), min_size=5, max_size=5), method=st.sampled_from(["paulus", "bielser"]),
        epsilon=st.sampled_from([0.0, 0.1]))
 def test_chains_of_five_cuts_through_poor_elements_each_separate(chain, method, epsilon):
     topo = TetTopology(POOR)
