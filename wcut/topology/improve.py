@@ -231,7 +231,7 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
             made = (twins and _slide(topo, t, twins, pinned, sine, stats, may_bend)) \
                 or _flip_edges(topo, t, unflipped, accept, stats) or _flip_faces(topo, t, unflipped, accept, stats) \
                 or _smooth(topo, t, frozen, sine, stats, may_move) \
-                or _smooth(topo, t, frozen, sine, stats, may_move, ascent=True) \
+                or _smooth(topo, t, frozen, sine, stats, may_move, candidates=_ascent_candidates) \
                 or (contract and _contract(topo, t, frozen, twins or {}, pinned, accept, stats))
             if made:
                 moves += 1
@@ -354,9 +354,11 @@ def _flip_faces(topo: TetTopology, t: int, frozen: set[int], accept, stats: Impr
 
 
 def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: ImproveStats, may_move=None,
-            ascent: bool = False) -> list[int]:
+            candidates=None) -> list[int]:
     """Move one vertex of element t to where the worst sine of its star rises most (the best
-    move that ``move_vertex`` accepts)."""
+    move that ``move_vertex`` accepts) among those ``candidates`` gives (:func:`_candidates`
+    by default)."""
+    candidates = candidates or _candidates
     rest = topo.rest_positions
     moves = []
     for v in topo.tet(t):
@@ -365,7 +367,7 @@ def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: Im
         star = sorted(topo.vertex_tets[v])
         now, floor = min(sine(s) for s in star), sine.floor(star)
         tried = [_merge([v] + parents, [1.0 - step] + [step * x for x in weights])
-                 for parents, weights in _candidates(topo, v, star, sine, ascent) for step in STEPS]
+                 for parents, weights in candidates(topo, v, star, sine) for step in STEPS]
         if not tried:
             continue
         targets = np.array([np.asarray(w) @ rest[full] for full, w in tried])
@@ -510,23 +512,15 @@ def _star_sines(sine: _Sines, star: list[int], moved, targets: np.ndarray) -> tu
     return measure.min(axis=1).tolist(), least.min(axis=1).tolist()
 
 
-def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines, ascent: bool = False):
+def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
     """Target positions of vertex v as combinations (parents, weights summing to 1) of
     vertices: the centroid of its neighbours (of its boundary neighbours for a boundary
     vertex, which keeps it in a flat boundary's plane, and, on a crease of two planes, along
     each edge to one of them by :data:`ALONG_EDGE`) and, inside, v pushed away from the
     face opposite it in its worst element by a quarter of its distance from that face's
-    centroid, and lifted off that face's plane (:func:`_lifted`). With ``ascent``, instead:
-    an inner v moved up the gradient of its worst element's measure (:func:`_ascent`)."""
+    centroid, and lifted off that face's plane (:func:`_lifted`)."""
     on_boundary = _boundary_neighbours(topo, v)
     boundary = bool(on_boundary)
-    if ascent:
-        if not boundary:
-            worst = min(star, key=sine)
-            face = [u for u in topo.tets[worst].tolist() if u != v]
-            for weights in _ascent(topo.rest_positions[[v] + face], sine.volume_scale):
-                yield [v] + face, weights
-        return
     neighbours = sorted({u for s in star for u in topo.tets[s].tolist()} - {v})
     if boundary:
         neighbours = [u for u in neighbours if u in on_boundary]
@@ -540,12 +534,27 @@ def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines, ascent
                 for f in ALONG_EDGE:
                     yield [v, u], [1.0 - f, f]
         return
-    worst = min(star, key=sine)
-    face = [u for u in topo.tets[worst].tolist() if u != v]
+    face = _opposite_face(topo, v, star, sine)
     yield [v] + face, [1.25] + [-0.25 / 3.0] * 3
     lifted = _lifted(topo.rest_positions[[v] + face])
     if lifted is not None:
         yield [v] + face, lifted
+
+
+def _ascent_candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
+    """:func:`_candidates` where none of those helps: an inner vertex v moved up the gradient
+    of its worst element's measure (:func:`_ascent`)."""
+    if _boundary_neighbours(topo, v):
+        return
+    face = _opposite_face(topo, v, star, sine)
+    for weights in _ascent(topo.rest_positions[[v] + face], sine.volume_scale):
+        yield [v] + face, weights
+
+
+def _opposite_face(topo: TetTopology, v: int, star: list[int], sine: _Sines) -> list[int]:
+    """The vertices of the face opposite v in the worst element of its star (slots)."""
+    worst = min(star, key=sine)
+    return [u for u in topo.tets[worst].tolist() if u != v]
 
 
 def _ascent(corners: np.ndarray, volume_scale: float | None) -> list[list[float]]:
