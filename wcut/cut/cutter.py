@@ -240,14 +240,13 @@ class Cutter:
             or below its smallest where that is smaller (:mod:`wcut.topology.improve`): the
             vertices inside the wound slide on it with their copies (those at the rim along a
             straight rim), the others move, edges and faces flip, and edges whose end the cut
-            made contract; the cut surface (where a
-            held boundary vertex bends it: within the band it spans there), the boundary, the
-            lips' match and the volume stay as they are; no flip, slide or contraction
-            rearranges the elements a progressive blade is still in, though smoothing may move
-            their vertices (16 straight blades through the organ: 10 increments of 145 leave an
-            angle below 5 degrees). On by default; it costs some
-            2 ms per increment of ``organ_cut``'s blade and 20 ms per plane cut of the organ at
-            epsilon 0.1 (``tools/cut_separation.py``). The corners of quadratic
+            made contract; the cut surface (where a held boundary vertex bends it: within the
+            band it spans there), the boundary, the lips' match and the volume stay as they
+            are; no flip, slide or contraction rearranges the elements a progressive blade is
+            still in, though smoothing may move their vertices (16 straight blades through the
+            organ: 10 increments of 145 leave an angle below 5 degrees). On by default; it
+            costs some 2 ms per increment of ``organ_cut``'s blade and 20 ms per plane cut of
+            the organ at epsilon 0.1 (``tools/cut_separation.py``). The corners of quadratic
             elements are improved only where every element is straight
             (:class:`~wcut.cut.quadratic.QuadraticCutter`).
     """

@@ -431,7 +431,7 @@ def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None) -> tupl
     if topo.unsewn and any(face_key(*[x for x in tet if x != y]) in topo.unsewn for tet in tets for y in tet if y != u):
         raise TopologyError(f"contraction of edge ({u}, {w}): a face on {u} is unsewn")
     added = [_substitute(tet, u, w) for tet in kept]
-    if _off_its_planes(boundary_normals(topo, u), topo.vertex_data[w, REST] - topo.vertex_data[u, REST]):
+    if _off_its_planes(_boundary_normals(topo, u), topo.vertex_data[w, REST] - topo.vertex_data[u, REST]):
         raise TopologyError(f"contraction of edge ({u}, {w}) would take boundary vertex {u} off its boundary")
     if accept is not None and not (added and accept(star, added)):  # (asked first: it refuses most)
         raise TopologyError(f"contraction of edge ({u}, {w}): not an improvement")
@@ -537,7 +537,7 @@ def check_vertex_move(topo: TetTopology, v: int, parents, weights, *, feature_an
     weights = _weights(weights, len(parents), f"moving vertex {v}")
     target = _point(topo, parents, weights)
     # (the boundary first: the cheaper test, and most snaps on a curved boundary fail it)
-    normals = boundary_normals(topo, v) if keep_boundary else np.zeros((0, 3))
+    normals = _boundary_normals(topo, v) if keep_boundary else np.zeros((0, 3))
     if _off_its_planes(normals, target - topo.vertex_data[v, REST]):
         along = len(parents) == 2 and v in parents and topo.is_boundary_edge(*parents)
         smooth = (normals @ normals.T).min() > np.cos(np.radians(feature_angle))
@@ -554,7 +554,7 @@ def _off_its_planes(normals: np.ndarray, step: np.ndarray) -> bool:
     return len(normals) > 0 and bool(np.abs(normals @ step).max() > 1e-12 * (np.linalg.norm(step) + 1e-300))
 
 
-def boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
+def _boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
     """Unit normals (K, 3) of the boundary faces around vertex v."""
     rest = topo.rest_tuples
     normals = [_unit_normal(rest[a], rest[b], rest[c]) for a, b, c in topo.boundary_faces_at(v)]
@@ -565,7 +565,7 @@ def boundary_plane_count(topo: TetTopology, v: int) -> int:
     """The number of distinct planes of the boundary faces around vertex v, counted up to three
     (0 for an inner vertex): 1 on a flat boundary, 2 on a straight crease (where v may move
     along the line the planes share), 3 where it may not move at all."""
-    normals = boundary_normals(topo, v)
+    normals = _boundary_normals(topo, v)
     count = 0
     while len(normals) and count < 3:
         normals = normals[normals @ normals[0] < 1.0 - 1e-12]
