@@ -659,3 +659,22 @@ def test_winding_jumps_by_one_across_the_surface_and_not_across_a_fold():
     # far triangles left out: a radius that reaches only the near sheet keeps the jump
     near = surface.winding_jumps(a[:1], b[:1], np.array([0.3]))
     assert abs(abs(near[0]) - 1.0) < 0.1
+
+
+def test_winding_numbers_tell_the_side_of_the_surface():
+    """The local winding number of S at a point: opposite signs next to S on either side,
+    differences equal to :meth:`winding_jumps` over the same triangles, and 0 beyond S's edge
+    in its plane."""
+    surface = _v_surface()
+    h = 0.01
+    above, below = np.array([[-0.5, 0.5 + h, 0.0]]), np.array([[-0.5, 0.5 - h, 0.0]])
+    inside, outside = surface.winding_numbers(above, 10.0)[0], surface.winding_numbers(below, 10.0)[0]
+    # inside the V the far sheet adds its solid angle (0.63); outside it takes it off (0.37)
+    assert 0.5 < abs(inside) < 1.0 and 0.3 < abs(outside) < 0.5 and np.sign(inside) != np.sign(outside)
+    jump = surface.winding_jumps(below, above, np.array([10.0]))[0]
+    assert inside - outside == pytest.approx(jump, abs=1e-12)
+    # the near sheet alone: about a half on either side
+    near = surface.winding_numbers(np.r_[above, below], 0.3)
+    np.testing.assert_allclose(near, [np.sign(inside) * 0.5, np.sign(outside) * 0.5], atol=0.01)
+    # beyond the right sheet's end, in its plane (the left sheet out of reach): no side
+    assert abs(surface.winding_numbers(np.array([[1.5, 1.5, 0.0]]), 0.8)[0]) < 1e-9
