@@ -1056,32 +1056,30 @@ class Cutter:
         Each element around this cut's elements gets S's local winding number at its
         centroid (:meth:`TriangleSurface.winding_numbers`, over the triangles within
         :data:`WINDING_REACH` mean edge lengths): across S it jumps by one, elsewhere it
-        varies smoothly. A sewn face with a vertex on the wound whose two elements' numbers
-        differ by more than a half is unsewn and its vertices are duplicated per fan (thesis
-        5.1.3); the element containing the fold goes with the side of its centroid, and the
-        cut follows its faces there. Numbers of elements, not of pairs, so the sides are
-        consistent and cut no crumb loose that S does not enclose (and :meth:`_keep_attached`
-        keeps any small piece attached). Elements the boundary of S meets (its front, where a
-        progressive blade still is), or with a vertex of an element the blade is still in,
-        wait for a later increment: their numbers change as the blade goes on. Nothing moves:
-        the volume stays exactly."""
+        varies smoothly. A sewn face between two elements whose numbers differ by more than a
+        half is unsewn and its vertices are duplicated per fan (thesis 5.1.3): the element
+        the fold passes through goes with the side of its centroid, and the cut follows its
+        faces there. The numbers are the elements', so the sides are consistent (and
+        :meth:`_keep_attached` keeps any small piece attached); only the pairs whose
+        centroids S lies between are looked at (one query of S). Elements the boundary of S
+        meets (a progressive blade's front), or with a vertex of an element the blade is
+        still in, wait for a later increment: their numbers change as the blade goes on.
+        Nothing moves: the volume stays exactly."""
         topo = self.topology
         changed = topo.changed_tets()
         if not changed:
             return
-        waiting, wound = self._waiting_vertices, self.wound_vertices
+        waiting = self._waiting_vertices
         elements = set()
         for v in np.unique(topo.tets[changed]).tolist():
             elements |= topo.vertex_tets[v]
         slots = np.array(sorted(t for t in elements if waiting.isdisjoint(topo.tets[t].tolist())), dtype=np.int64)
         # the faces two of these elements share (vectorised: reading the mesh's face table
-        # would link it anew after every change) with a vertex on the wound
+        # would link it anew after every change)
         faces = np.sort(topo.tets[slots][:, TET_FACES], axis=2).reshape(-1, 3)
         order = np.lexsort(faces.T[::-1])
         same = np.flatnonzero(np.all(faces[order[1:]] == faces[order[:-1]], axis=1))
         first, second = order[same], order[same + 1]
-        on_wound = np.isin(faces[first], np.fromiter(wound, np.int64, len(wound))).any(axis=1)
-        first, second = first[on_wound], second[on_wound]
         if not len(first):
             return
         # only elements whose centroids S lies between can be on its two sides: one query
