@@ -380,10 +380,12 @@ class TriangleSurface(CutSurface):
 
     def winding_numbers(self, points, radius: float) -> np.ndarray:
         """(M,) the local winding number of S at ``points`` (M, 3) (m): the signed solid angle
-        (over 4 pi) that the triangles within ``radius`` (m) of each point subtend there. About
-        +-1/2 next to S on either side well inside its boundary (a half for the near side
-        of a flat S at a tenth of ``radius``, 0.45), 0 beyond its boundary, and in between it
-        varies smoothly: its sign tells the side of S of a point near it."""
+        (over 4 pi) that the triangles within ``radius`` (m) of each point subtend there. It
+        jumps by one across S and varies smoothly elsewhere: about +-1/2 on either side of a
+        flat S well inside its boundary (0.45 at a tenth of ``radius`` from it), more inside
+        a fold, 0 in S's plane beyond its boundary. Each point's own triangles, so the
+        numbers of nearby points differ by :meth:`winding_jumps` up to the triangles only one
+        of them reaches."""
         points = _array(points, (-1, 3), "points")
         numbers = np.zeros(len(points))
         if not len(points):
