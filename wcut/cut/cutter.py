@@ -119,9 +119,6 @@ CAP_HOLD = 2.0
 CORNER_PIECES = 3.0
 
 
-
-
-
 class CutError(WcutError):
     """A cut cannot be made: unknown method, bad threshold, or a surface that misses the mesh."""
 
@@ -140,8 +137,9 @@ class CutStats:
     unsewn_faces: int = 0
     duplicated_vertices: int = 0
     deleted_elements: int = 0
-    #: vertices where a complete cut was left joined and :meth:`Cutter._separate` split the
-    #: elements around them by side
+    #: vertices where a complete cut was left joined and :meth:`Cutter._separate` (a plane) or
+    #: :meth:`Cutter._separate_sheets` (a triangulated surface) split the elements around them
+    #: by side
     separated_vertices: int = 0
     #: moves of the local mesh improvement after the cut (:mod:`wcut.topology.improve`)
     improved_edge_flips: int = 0
