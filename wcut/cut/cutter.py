@@ -1269,10 +1269,22 @@ class Cutter:
 
         def off_the_cut(vertices: list[int], parents: list[list[int]], weights: list[list[float]]) -> np.ndarray:
             """Per move of ``vertices[i]``: it neither crosses the surface nor ends within its
-            tolerance."""
+            tolerance, and a boundary vertex of an element the blade is still in does not come
+            closer to the surface's nearest plane (there it meets the blade's next increment:
+            where the blade turned, a face at the fold came out split off the surface, and an
+            edge stayed across it, on one of 40 paths of tools/cut_turns.py and on the plate
+            of the tests)."""
             p = targets(parents, weights)
             t, _ = surface.crossings(coordinates[list(vertices)], p, tolerance)
-            return np.isnan(t) & (surface.distance(p, tolerance) > tolerance)
+            ok = np.isnan(t) & (surface.distance(p, tolerance) > tolerance)
+            waiting = np.array([v in self._waiting_vertices and topo.is_boundary_vertex(v) for v in vertices])
+            if waiting.any():
+                here = coordinates[np.asarray(vertices)[waiting]]
+                origin, normal = surface.tangent_planes(here)
+                before = np.abs(np.einsum("ij,ij->i", here - origin, normal))
+                after = np.abs(np.einsum("ij,ij->i", p[waiting] - origin, normal))
+                ok[np.flatnonzero(waiting)[after < before]] = False
+            return ok
 
         def within_band(vertices: list[int], parents: list[list[int]], weights: list[list[float]]) -> np.ndarray:
             """Per slide of a wound vertex off its bent fan's planes: its fan, ``parents[i]``, is
