@@ -369,7 +369,8 @@ class SolverCorotational:
                               inputs=[chunk, jacobi, counter, self.inv_diagonal, p, pq, rz],
                               outputs=[self.dv, r, z, q, rd, self._velocity]))
         body.append(wp.launch(cg.cg_advance, 1, device=d, record_cmd=True,
-                              inputs=[self._cg_iterations, rd, self._velocity, norms], outputs=[counter, self._running]))
+                              inputs=[self._cg_iterations, rd, self._velocity, norms],
+                              outputs=[counter, self._running]))
         self._cg_start, self._cg_body = start, body
         self._recorded_for = self._record_key(dt)
 
