@@ -1029,17 +1029,26 @@ class Cutter:
                 centroids = x[[[topo.tet(t) for t in sorted(topo.face_tets[key])] for key in keys]].mean(axis=2)
             near = self._on_surface(surface, x[np.asarray(keys)], centroids)
             opened = [key for key, ok in zip(keys, near.tolist()) if ok]
-        opened = self._keep_attached(opened, _TopologyFaces(topo))
-        for key in opened:
-            unsew_face(topo, key)
-        stats.unsewn_faces += len(opened)
-        for v in sorted({v for key in opened for v in key}):
-            copies = duplicate_vertex(topo, v)
-            stats.duplicated_vertices += len(copies)
-            self.wound_vertices.update(copies, (v,))
-            if v in self.split_vertices:
-                self.split_vertices.update(copies)
+        self._open(self._keep_attached(opened, _TopologyFaces(topo)), stats)
         sew_unopened(topo)
+
+    def _open(self, faces: list, stats: CutStats) -> int:
+        """Unsew interior ``faces`` (vertex triples) and duplicate their vertices once per fan
+        (thesis 5.1.3); returns how many of those vertices got copies."""
+        for key in faces:
+            unsew_face(self.topology, key)
+        stats.unsewn_faces += len(faces)
+        return sum(bool(self._duplicate(v, stats)) for v in sorted({v for key in faces for v in key}))
+
+    def _duplicate(self, v: int, stats: CutStats) -> list[int]:
+        """Split vertex v into one copy per fan of elements; the copies are on the wound (and
+        made by a split where v was). Returns the new vertices."""
+        copies = duplicate_vertex(self.topology, v)
+        stats.duplicated_vertices += len(copies)
+        self.wound_vertices.update(copies, (v,))
+        if v in self.split_vertices:
+            self.split_vertices.update(copies)
+        return copies
 
     def _separate_sheets(self, surface: TriangleSurface, stats: CutStats) -> None:
         """Make sure a triangulated S left no sewn face between elements on its two sides.
@@ -1084,33 +1093,21 @@ class Cutter:
         owners = np.c_[slots[first // 4], slots[second // 4]]
         centroids = self.coordinates()[topo.tets[owners]].mean(axis=2)  # (F, 2, 3)
         hit, _ = surface.crossings(centroids[:, 0], centroids[:, 1], self.tolerance)
-        across = np.isfinite(hit)
-        if not across.any():
-            return
+        across = np.flatnonzero(np.isfinite(hit))
         keys = [face_key(*f) for f in faces[first[across]].tolist()]
-        sewn = np.array([key not in topo.unsewn for key in keys], dtype=bool)
-        keys, owners = [key for key, ok in zip(keys, sewn.tolist()) if ok], owners[across][sewn]
+        sewn = [key not in topo.unsewn for key in keys]
+        pick, keys = across[sewn], [key for key, ok in zip(keys, sewn) if ok]
         if not keys:
             return
-        slots = np.unique(owners)
+        slots, index = np.unique(owners[pick], return_index=True)  # each with its centroid
         rim = surface.vertices[_boundary_edges(surface.triangles)]
         met = self._crossed_by(slots, rim) if len(rim) else np.zeros(len(slots), dtype=bool)
-        numbers = surface.winding_numbers(self.coordinates()[topo.tets[slots]].mean(axis=1),
-                                          WINDING_REACH * self.mean_edge_length)
+        numbers = surface.winding_numbers(centroids[pick].reshape(-1, 3)[index], WINDING_REACH * self.mean_edge_length)
         winding = {s: w for s, w, m in zip(slots.tolist(), numbers.tolist(), met.tolist()) if not m}
-        opened = [key for key, (a, b) in zip(keys, owners.tolist())
+        opened = [key for key, (a, b) in zip(keys, owners[pick].tolist())
                   if a in winding and b in winding and abs(winding[a] - winding[b]) > 0.5]
         opened = self._keep_attached(sorted(opened), _TopologyFaces(topo), any_shape=True)
-        for key in opened:
-            unsew_face(topo, key)
-        stats.unsewn_faces += len(opened)
-        for v in sorted({v for key in opened for v in key}):
-            copies = duplicate_vertex(topo, v)
-            stats.duplicated_vertices += len(copies)
-            stats.separated_vertices += bool(copies)
-            self.wound_vertices.update(copies, (v,))
-            if v in self.split_vertices:
-                self.split_vertices.update(copies)
+        stats.separated_vertices += self._open(opened, stats)
         if opened:
             sew_unopened(topo)
 
@@ -1221,11 +1218,7 @@ class Cutter:
                         unsew_face(topo, key)
                         stats.unsewn_faces += 1
         for v in joined:
-            copies = duplicate_vertex(topo, v)
-            stats.duplicated_vertices += len(copies)
-            self.wound_vertices.update(copies, (v,))
-            if v in self.split_vertices:
-                self.split_vertices.update(copies)
+            self._duplicate(v, stats)
         stats.separated_vertices += len(joined)
         sew_unopened(topo)
 
