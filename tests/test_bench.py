@@ -30,7 +30,7 @@ TINY_CUTS = (("tiny_cut", (6, 4, 5), (0.06, 0.04, 0.05)), ("tiny_cut2", (10, 4, 
 def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
     path = tmp_path / "bench.json"
     tiny = (("tiny", (2, 2, 4), (0.02, 0.02, 0.04)),)
-    result = run_benchmarks(path, quick=True, progress=False, scenes=tiny,
+    result = run_benchmarks(path, quick=True, progress=True, scenes=tiny,
                             cut_scenes=TINY_CUTS, p2_scenes=(("tiny_p2", (2, 2, 4), (0.02, 0.02, 0.04)),),
                             ar_frames=6, blade_frames=30, accuracy_scenes=tiny, accuracy_moduli=(1.0e6,))
     written = json.loads(path.read_text())
@@ -43,7 +43,13 @@ def test_benchmark_on_a_small_beam_writes_the_contract_json(tmp_path, capsys):
         assert record[key] > 0, key
     assert abs(record["speedup_vs_reference"] - record["reference_step_ms"] / record["step_ms"]) < 0.05 * \
         record["speedup_vs_reference"] + 0.01
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
+    # progress on stderr gives each measurement's figures as it is made: a run stopped early still tells
+    progress = captured.err.splitlines()
+    assert f"    step {record['step_ms']} ms, {record['cg_iterations']} CG iterations" in progress
+    assert f"    event {written['cut_events'][1]['event_ms']} ms" in progress
+    assert f"    step {written['quadratic'][0]['step_ms']} ms" in progress
     assert "tiny" in out and "tiny_cut2" in out and "bielser" in out and "tiny_p2" in out and "cut detection" in out
     detection, loop = written["ar_detection"], written["ar_loop"]
     assert detection["features"] == 500 and 5000 < detection["pairs"] < 9000 and detection["update_ms"] > 0

@@ -620,14 +620,17 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
     for i, (name, cells, size) in enumerate(scenes):
         say(f"[{i + 1}/{len(scenes)}] {name} ...")
         records.append(bench_scene(name, cells, size, repeats=5 if quick else 20, reference_repeats=1 if quick else 3))
+        say(f"    step {records[-1]['step_ms']} ms, {records[-1]['cg_iterations']} CG iterations")
     cut_events = []
     for i, (name, cells, size) in enumerate(cut_scenes):
         say(f"[{i + 1}/{len(cut_scenes)}] cut event {name} ...")
         cut_events.append(bench_cut_event(name, cells, size, repeats=2 if quick else 7))
+        say(f"    event {cut_events[-1]['event_ms']} ms")
     quadratic = []
     for i, (name, cells, size) in enumerate(p2_scenes):
         say(f"[{i + 1}/{len(p2_scenes)}] quadratic {name} ...")
         quadratic.append(bench_quadratic(name, cells, size, repeats=5 if quick else 20))
+        say(f"    step {quadratic[-1]['step_ms']} ms")
     accuracy = []
     cases = [(scene, E, ramp) for ramp in accuracy_ramps for scene in accuracy_scenes for E in accuracy_moduli]
     for i, ((name, cells, size), E, ramp) in enumerate(cases):
@@ -635,6 +638,7 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
         max_time = ramp + 3.0 if quick else ACCURACY_MAX_TIME
         accuracy.append(bench_time_to_accuracy(name, cells, size, E, max_time=max_time,
                                                jacobi_steps=3 if quick else JACOBI_STEPS, ramp=ramp))
+        say(f"    {accuracy[-1]['steps']} steps, step {accuracy[-1]['step_ms']} ms, tip error {accuracy[-1]['tip_error']}")
     result = {"device": str(wp.get_device()), "warp": wp.config.version, "cores": available_cores(), "scenes": records,
               "cut_events": cut_events, "quadratic": quadratic, "time_to_accuracy": accuracy}
     ar_frames = (20 if quick else 90) if ar_frames is None else ar_frames
