@@ -415,6 +415,24 @@ def test_move_vertex_refusals():
     assert_refused(topo, move_vertex, face, [face, inner], [0.9, 0.1], match="off its boundary")
 
 
+def test_move_vertex_in_a_deformed_body_keeps_its_strain_with_current():
+    """A move in the rest configuration carries the current position by the same weights. In a
+    body squeezed where it is now (a neighbour pushed halfway to the vertex), that stretches an
+    element of the star 12% beyond anything it had: refused with ``current``, made without it;
+    in an undeformed body the same move is made either way."""
+    center, left = _grid_vertex(1, 1, 1), _grid_vertex(0, 1, 1)
+    for shift, refused in ((0.0, False), (0.5, True)):
+        mesh = MESHES["beam"]()
+        squeezed = mesh.vertices.copy()
+        squeezed[left] += shift * (squeezed[center] - squeezed[left])
+        topo = TetTopology(mesh, positions=squeezed)
+        if refused:
+            assert_refused(topo, move_vertex, center, [center, left], [0.6, 0.4], current=True,
+                           match="of its rest volume in the current configuration")
+        move_vertex(topo, center, [center, left], [0.6, 0.4], current=not refused)
+        np.testing.assert_allclose(topo.positions[center], 0.6 * squeezed[center] + 0.4 * squeezed[left])
+
+
 # ---------------------------------------------------------------------------------------------
 # refusals of the other operators
 

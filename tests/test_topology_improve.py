@@ -16,6 +16,8 @@ from wcut.topology import TetTopology, check_topology
 from wcut.topology.improve import improve, min_sine, min_sines
 
 POOR = perturbed(beam(5, 4, 4, size=(0.05, 0.04, 0.04)), 1.0, seed=1)  # worst dihedral 0.52 degrees
+#: the perturbed beam of tools/cut_separation.py: its outer faces are the box's, flat
+POOR_BEAM = perturbed(beam(8, 4, 4, size=(0.08, 0.04, 0.04)), 0.3, 0)
 
 
 @settings(max_examples=50, deadline=None, derandomize=True)
@@ -183,18 +185,24 @@ def test_vertices_of_a_flat_boundary_move_along_its_edges_under_a_blade(along, m
     """A blade swept through a perturbed beam in 30 increments (one of 16 random blades): the
     elements it leaves at the beam's flat faces are fixed by moving a boundary vertex along
     one of its boundary edges within the face (measured: the worst angle after any increment
-    4.15 degrees, 1.71 with such moves on creases only). The beam stays valid, keeps its
+    5.80 degrees, 3.75 with such moves on creases only). The beam stays valid, keeps its
     volume and comes apart in two."""
-    from wcut.cut import SweptBlade
-    from wcut.topology import connected_components
     import wcut.topology.improve as improve_module
 
     if not along:  # a flat boundary counted as three planes: no moves along its edges
         count = improve_module.boundary_plane_count
         monkeypatch.setattr(improve_module, "boundary_plane_count", lambda topo, v: 3 if count(topo, v) == 1
                             else count(topo, v))
-    mesh = perturbed(beam(8, 4, 4, size=(0.08, 0.04, 0.04)), 0.3, 0)
-    blade = _random_blades(mesh, 30)[7]
+    worst = _worst_under_blade(POOR_BEAM, _random_blades(POOR_BEAM, 30)[6])
+    assert (worst > 4.5) == along and worst > 3.0
+
+
+def _worst_under_blade(mesh: TetMesh, blade: np.ndarray) -> float:
+    """The worst dihedral angle (degrees) after any increment of ``blade`` (positions, 2, 3)
+    swept through ``mesh``, which must stay valid, keep its volume and come apart in two."""
+    from wcut.cut import SweptBlade
+    from wcut.topology import connected_components
+
     topo = TetTopology(mesh)
     cutter, sweep = Cutter(topo, epsilon=0.1), SweptBlade(blade)
     worst = 180.0
@@ -203,7 +211,7 @@ def test_vertices_of_a_flat_boundary_move_along_its_edges_under_a_blade(along, m
             worst = min(worst, _worst_angle(topo))
     check_topology(topo, mesh.volumes().sum(), volume_tolerance=1e-9)
     assert connected_components(topo.to_mesh()).max() == 1
-    assert (worst > 4.0) == along and worst > 1.5
+    return worst
 
 
 def test_a_wedge_at_an_edge_through_the_vertex_is_smoothed_up_its_gradient():
@@ -405,21 +413,15 @@ def test_a_progressive_cut_contracts_only_vertices_it_made():
     assert contracted > 0
 
 
-#: the perturbed beam of tools/cut_separation.py: its outer faces are the box's, flat
-POOR_BEAM = perturbed(beam(8, 4, 4, size=(0.08, 0.04, 0.04)), 0.3, 0)
-
-
 @pytest.mark.parametrize("point, normal", [
     ([0.053108103752817666, 0.018183982727383224, 0.020991873753461194],
      [0.47329008528969163, 0.04573437199029375, 0.879718626826288]),
     ([0.02216375031483861, 0.0173857261218884, 0.011697895443309361],
      [0.19814050934380317, -0.5859319748724263, 0.7857633609294064])])
-def test_the_wound_slides_along_its_rim_on_a_flat_boundary(point, normal, monkeypatch):
-    """Plane cuts of a perturbed beam that leave their worst element at the rim, where the wound
-    meets a face of the box: the two copies of a rim vertex slide together along the rim, the
-    line where the two flat surfaces meet, which keeps both and each side's volume. The worst
-    angle rises from below 4.5 degrees (without the rim slides) to above 5."""
-    import wcut.topology.improve as improve_module
+def test_plane_cuts_keep_the_box_the_wound_and_each_side_s_volume(point, normal):
+    """Plane cuts of a perturbed beam whose worst elements lie at the rim, where the wound meets
+    a face of the box: the improvement keeps both surfaces and each side's volume, and the worst
+    angle rises above 5 degrees."""
     from wcut.cut.cutter import CAP_HOLD
     from wcut.cut.separation import element_sides
 
@@ -447,5 +449,37 @@ def test_the_wound_slides_along_its_rim_on_a_flat_boundary(point, normal, monkey
     side_volumes = [[m.volumes()[element_sides(plane.signed_distance(m.vertices)[m.tets], cutter.tolerance)
                                  == side].sum() for side in (-1, 1)] for m in (plain.to_mesh(), mesh)]
     np.testing.assert_allclose(side_volumes[1], side_volumes[0], rtol=1e-9)
-    monkeypatch.setattr(improve_module, "ALONG_EDGE", ())
-    assert _worst_angle(cut()[0]) < 4.5
+
+
+@pytest.mark.parametrize("passes", (3, None))
+def test_passes_go_on_until_one_makes_no_move(passes, monkeypatch):
+    """Bielser's method splits each element the plane crosses into many, and leaves fans of
+    thin elements around the vertices next to the plane; each pass of the improvement fixes
+    some and makes others poor. Passes until one makes no move raise the worst angle of this
+    cut (one of 20 random planes) from 3.08 degrees after three passes to 6.0."""
+    import wcut.topology.improve as improve_module
+
+    if passes is not None:
+        monkeypatch.setattr(improve_module, "PASSES", passes)
+    plane = Plane([0.027980617758728534, 0.028842262210129956, 0.01730220336489657],
+                  [-0.9548412083046751, 0.022545580160767763, 0.2962599597287533])
+    topo = TetTopology(POOR_BEAM)
+    cutter = Cutter(topo, method="bielser", epsilon=0.1)
+    cutter.cut(plane)
+    check_topology(topo, POOR_BEAM.volumes().sum(), volume_tolerance=1e-12)
+    assert_separates(topo, plane, cutter)
+    assert (_worst_angle(topo) > 5.5) == (passes is None) and _worst_angle(topo) > 3.0
+
+
+@pytest.mark.parametrize("rim", (True, False))
+def test_the_wound_slides_along_its_rim_under_a_blade(rim, monkeypatch):
+    """A blade swept through the perturbed beam in 30 increments (one of 16 random blades): the
+    two copies of a vertex at the rim, where the wound meets a face of the box, slide together
+    along the rim, the line where the two flat surfaces meet (measured: the worst angle after
+    any increment 5.80 degrees, 3.56 without rim slides)."""
+    import wcut.topology.improve as improve_module
+
+    if not rim:
+        monkeypatch.setattr(improve_module, "_rim_targets", lambda count: [])
+    worst = _worst_under_blade(POOR_BEAM, _random_blades(POOR_BEAM, 30)[6])
+    assert (worst > 4.5) == rim and worst > 3.0

@@ -94,6 +94,10 @@ QUALITY_DROP = 0.1
 #: winding number between the two centroids by a few per cent, near enough to stay local.
 WINDING_REACH = 8.0
 
+#: Where a face lies in S, :meth:`Cutter._separate_sheets` compares S's winding numbers at
+#: points this fraction of the way from the face's centre to its two elements' centroids.
+NEAR_FACE = 0.05
+
 #: Snapping threshold (relative) applied even when ``epsilon`` is smaller: crossings closer
 #: to a vertex than this would only make needle elements (thesis 5.1.4).
 MIN_SNAP = 1e-3
@@ -1066,8 +1070,12 @@ class Cutter:
         varies smoothly. A sewn face between two elements whose numbers differ by more than a
         half is unsewn and its vertices are duplicated per fan (thesis 5.1.3): the element
         the fold passes through goes with the side of its centroid, and the cut follows its
-        faces there. The numbers are the elements', so the sides are consistent (and
-        :meth:`_keep_attached` keeps any small piece attached); only the pairs whose
+        faces there. A face lying in S opens where the numbers at points next to it
+        (:data:`NEAR_FACE`) jump by more than a half: near S's boundary (a blade's entry just
+        above the body) those at centroids a few tenths of an edge away jump by less (0.35 on
+        a beam cut by Bielser's method, which stayed joined at its top). The numbers are the
+        elements', so the sides are consistent (and :meth:`_keep_attached` keeps any small
+        piece attached); only the pairs whose
         centroids S lies between are looked at (one query of S). Elements the boundary of S
         meets (a progressive blade's front), or with a vertex of an element the blade is
         still in, wait for a later increment: their numbers change as the blade goes on.
@@ -1104,8 +1112,19 @@ class Cutter:
         met = self._crossed_by(slots, rim) if len(rim) else np.zeros(len(slots), dtype=bool)
         numbers = surface.winding_numbers(centroids[pick].reshape(-1, 3)[index], WINDING_REACH * self.mean_edge_length)
         winding = {s: w for s, w, m in zip(slots.tolist(), numbers.tolist(), met.tolist()) if not m}
-        opened = [key for key, (a, b) in zip(keys, owners[pick].tolist())
-                  if a in winding and b in winding and abs(winding[a] - winding[b]) > 0.5]
+        jump = np.array([winding[a] - winding[b] if a in winding and b in winding else np.nan
+                         for a, b in owners[pick].tolist()])
+        across_s = np.abs(jump) > 0.5  # (nan: a waiting element)
+        lying = np.isfinite(jump) & ~across_s
+        if lying.any():  # a face lying in S: the jump between points next to it
+            corners = self.coordinates()[faces[first[pick[lying]]]]  # (L, 3, 3)
+            centre = corners.mean(axis=1)
+            on_s = surface.distance(centre, self.tolerance) <= self.tolerance
+            near = centre[:, None] + NEAR_FACE * (centroids[pick[lying]] - centre[:, None])  # (L, 2, 3)
+            radius = WINDING_REACH * np.linalg.norm(corners - centre[:, None], axis=2).max(axis=1)
+            jumps = surface.winding_jumps(near[:, 0], near[:, 1], radius)
+            across_s[np.flatnonzero(lying)[on_s & (np.abs(jumps) > 0.5)]] = True
+        opened = [key for key, ok in zip(keys, across_s.tolist()) if ok]
         opened = self._keep_attached(sorted(opened), _TopologyFaces(topo), any_shape=True)
         stats.separated_vertices += self._open(opened, stats)
         if opened:
