@@ -638,7 +638,8 @@ def run_benchmarks(json_path=None, *, quick: bool = False, progress: bool = True
         max_time = ramp + 3.0 if quick else ACCURACY_MAX_TIME
         accuracy.append(bench_time_to_accuracy(name, cells, size, E, max_time=max_time,
                                                jacobi_steps=3 if quick else JACOBI_STEPS, ramp=ramp))
-        say(f"    {accuracy[-1]['steps']} steps, step {accuracy[-1]['step_ms']} ms, tip error {accuracy[-1]['tip_error']}")
+        case = accuracy[-1]
+        say(f"    {case['steps']} steps, step {case['step_ms']} ms, tip error {case['tip_error']}")
     result = {"device": str(wp.get_device()), "warp": wp.config.version, "cores": available_cores(), "scenes": records,
               "cut_events": cut_events, "quadratic": quadratic, "time_to_accuracy": accuracy}
     ar_frames = (20 if quick else 90) if ar_frames is None else ar_frames

@@ -20,8 +20,8 @@ import math
 import numpy as np
 
 from ..mesh import DEGENERATE_TOL
-from .mesh import (NEAR_TIE, POSITION, REST, TetTopology, TopologyError, face_key, rounded32, signed_volume, tet_quality,
-                   tet_quality_and_length)
+from .mesh import (NEAR_TIE, POSITION, REST, TetTopology, TopologyError, face_key, rounded32, signed_volume,
+                   tet_quality, tet_quality_and_length)
 
 #: Up to this many elements :func:`tet_qualities` loops in plain floats: numpy's per-call
 #: overhead (some 40 array operations) exceeds the arithmetic of a few elements.
