@@ -1114,7 +1114,7 @@ class Cutter:
         winding = {s: w for s, w, m in zip(slots.tolist(), numbers.tolist(), met.tolist()) if not m}
         jump = np.array([winding[a] - winding[b] if a in winding and b in winding else np.nan
                          for a, b in owners[pick].tolist()])
-        across_s = np.abs(jump) > 0.5  # (nan: a waiting element)
+        across_s = np.abs(jump) > 0.5  # (nan: an element that S's boundary meets)
         lying = np.isfinite(jump) & ~across_s
         if lying.any():  # a face lying in S: the jump between points next to it
             corners = self.coordinates()[faces[first[pick[lying]]]]  # (L, 3, 3)
