@@ -375,7 +375,7 @@ def test_a_cut_of_a_bent_body_inverts_no_element_where_it_is_now(perturb, method
     inverted elements where the body is now (the smallest ratio of current to rest volume
     -1.98 with Bielser's method, -0.46 on the perturbed beam), which the next steps blow up.
     Moves are checked in the current configuration too: the smallest ratio stays 1.008 and
-    0.55 (a move may compress an element 10% beyond those it replaces)."""
+    0.50 (the moves may compress an element 10% beyond those it came from)."""
     mesh = perturbed(BEAM, perturb, 0) if perturb else BEAM
     blade = SweptBlade(_down_blade(10, 0.09, 0.04, -0.04))
     topo = TetTopology(mesh, positions=_bent(mesh.vertices))

@@ -63,8 +63,10 @@ refuses a smoothing move that ends within the surface's tolerance or crosses it,
 that makes an element with an edge across it (without either, half of the organ's plane cuts
 at epsilon 0 were left joined). In a deformed body (current positions not the rest ones) a
 move must also leave its elements valid where the body is now, none compressed or stretched
-beyond the elements it replaces (:func:`~wcut.topology.operators.check_current`): the current
-positions follow the rest moves by interpolation, and unchecked that inverted elements there.
+more than 10% beyond the elements it came from before the improvement, however many moves
+made it (:func:`~wcut.topology.operators.check_current`): the current positions follow the
+rest moves by interpolation, and unchecked that inverted elements there (with the 10% per
+move, many moves compressed elements by a third within one cut event of the S-example).
 """
 
 from __future__ import annotations
@@ -246,6 +248,8 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
                 or (contract and _contract(topo, t, frozen, twins or {}, pinned, accept, stats))
             if made:
                 moves += 1
+                if sine.current:  # what the move made keeps the range of what it replaced
+                    sine.spans.update((m, sine.last_span) for m in made)
                 for v in set(topo.tets[made].ravel().tolist()):
                     moved_at[v] = moves
                     if twins and v in twins:
@@ -288,6 +292,11 @@ class _Sines:
         self.known: dict[int, float] = {}
         self.known_sines: dict[int, float] = {}  # the sines alone, where volume_scale is given
         self.current = False  # whether moves are checked in the current configuration too
+        # per slot, the (lowest, highest) ratio of current to rest volume of the elements it
+        # came from before this improvement (its own where no move made it): the range a move
+        # must keep within, so that the check's slack does not compound over many moves
+        self.spans: dict[int, tuple[float, float]] = {}
+        self.last_span: tuple[float, float] | None = None  # that of the last move allowed
 
     def __call__(self, t: int) -> float:
         return self._remembered(self.known, t, self.volume_scale)
@@ -308,6 +317,16 @@ class _Sines:
             self.known_sines.update(zip(slots, sines.tolist()))
         return values
 
+    def span(self, slots) -> tuple[float, float]:
+        """The (lowest, highest) :attr:`spans` of live element slots ``slots``."""
+        unknown = [t for t in slots if t not in self.spans]
+        if unknown:
+            index = self.topo.tets[unknown]
+            ratio = _volumes(self.topo.positions[index]) / _volumes(self.topo.rest_positions[index])
+            self.spans.update((t, (r, r)) for t, r in zip(unknown, ratio.tolist()))
+        spans = [self.spans[t] for t in slots]
+        return min(lo for lo, _ in spans), max(hi for _, hi in spans)
+
     def of(self, tets) -> tuple[float, float]:
         """The worst measure and the worst sine of elements ``tets`` (vertex lists)."""
         measure, sine = _sines(self.topo.rest_positions[np.asarray(tets)], self.volume_scale)
@@ -327,18 +346,26 @@ def _better(sine: _Sines, may_make=None):
     def accept(removed, added) -> bool:
         measure, least = sine.of(added)
         return measure > min(sine(t) for t in removed) + MIN_GAIN and least >= sine.floor(removed) and \
-            (may_make is None or may_make(added)) and (not sine.current or _valid_now(sine.topo, removed, added))
+            (may_make is None or may_make(added)) and (not sine.current or _valid_now(sine, removed, added))
     return accept
 
 
-def _valid_now(topo: TetTopology, removed, added) -> bool:
+def _valid_now(sine: _Sines, removed, added) -> bool:
     """Whether elements ``added`` (vertex lists) may replace live slots ``removed`` in the
-    current configuration (:func:`check_current`)."""
+    current configuration (:func:`check_current`, within the span of ``removed``)."""
+    span = sine.span(removed)
     try:
-        check_current(topo, topo.tets[list(removed)].tolist(), added, "a move")
+        check_current(sine.topo, None, added, "a move", span=span)
     except TopologyError:
         return False
+    sine.last_span = span
     return True
+
+
+def _volumes(corners: np.ndarray) -> np.ndarray:
+    """Signed volumes (m^3) of (M, 4, 3) tetrahedra."""
+    a, b, c, d = corners[:, 0], corners[:, 1], corners[:, 2], corners[:, 3]
+    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
 
 
 def _flip_edges(topo: TetTopology, t: int, frozen: set[int], accept, stats: ImproveStats) -> list[int]:
@@ -401,11 +428,13 @@ def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: Im
         _, vertices, parents, weights = zip(*moves)
         moves = [m for m, ok in zip(moves, may_move(vertices, parents, weights)) if ok]
     for _, v, parents, weights in moves:
+        span = sine.span(sorted(topo.vertex_tets[v])) if sine.current else False
         try:
-            move_vertex(topo, v, parents, weights, current=sine.current)
+            move_vertex(topo, v, parents, weights, current=span)
         except TopologyError:
             continue
         stats.smoothed += 1
+        sine.last_span = span or None
         return sorted(topo.vertex_tets[v])
     return []
 
@@ -494,15 +523,16 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
         refused = {i for i, ok in zip(bent, allowed) if not ok}
         moves = [m for i, m in enumerate(moves) if i not in refused]
     for _, v, w, lip, mirrored, weights, bends in moves:
+        span = sine.span(sorted(topo.vertex_tets[v] | topo.vertex_tets[w])) if sine.current else False
         try:  # both checked before either moves (w's star does not hold v: the checks stand)
-            checked = (check_vertex_move(topo, v, [v] + lip, weights, keep_boundary=not bends, current=sine.current),
-                       check_vertex_move(topo, w, [w] + mirrored, weights, keep_boundary=not bends,
-                                         current=sine.current))
+            checked = (check_vertex_move(topo, v, [v] + lip, weights, keep_boundary=not bends, current=span),
+                       check_vertex_move(topo, w, [w] + mirrored, weights, keep_boundary=not bends, current=span))
         except TopologyError:
             continue
         topo.set_vertex(v, [v] + lip, checked[0])
         topo.set_vertex(w, [w] + mirrored, checked[1])
         stats.slid += 1
+        sine.last_span = span or None
         return sorted(topo.vertex_tets[v] | topo.vertex_tets[w])
     return []
 

@@ -513,7 +513,7 @@ def _polygon_qualities(corners: list, rest_a, rest_b) -> list:
 
 
 def move_vertex(topo: TetTopology, v: int, parents, weights, *, feature_angle: float = 0.0,
-                current: bool = False) -> None:
+                current: bool | tuple = False) -> None:
     """Move vertex v (snapping, thesis 5.1.3) to the barycentric combination of ``parents``.
 
     Refused when an element around v would invert or flatten, or, for a boundary vertex,
@@ -530,14 +530,15 @@ def move_vertex(topo: TetTopology, v: int, parents, weights, *, feature_angle: f
 
 
 def check_vertex_move(topo: TetTopology, v: int, parents, weights, *, feature_angle: float = 0.0,
-                      keep_boundary: bool = True, current: bool = False) -> np.ndarray:
+                      keep_boundary: bool = True, current: bool | tuple = False) -> np.ndarray:
     """Raise :class:`TopologyError` where :func:`move_vertex` would refuse the move; return the
     weights as it takes them. Changes nothing (a caller moving two vertices together checks
     both first). ``keep_boundary`` False lets v leave the planes of its boundary faces: for a
     vertex inside a wound moving with its copy on the other lip, whose faces follow (the lips
     still meet and the volume stays); only the elements around v are checked then.
     ``current``: the elements around v must stay well shaped in the current configuration
-    too, v's current position carried by the same weights (:func:`check_current`)."""
+    too, v's current position carried by the same weights (:func:`check_current`; a tuple is
+    its ``span``)."""
     weights = _weights(weights, len(parents), f"moving vertex {v}")
     target = _point(topo, parents, weights)
     # (the boundary first: the cheaper test, and most snaps on a curved boundary fail it)
@@ -552,24 +553,28 @@ def check_vertex_move(topo: TetTopology, v: int, parents, weights, *, feature_an
     if current:
         star = [topo.tet(t) for t in around]
         check_current(topo, star, star, f"moving vertex {v}",
-                      {v: (target, weights @ topo.vertex_data[list(parents), POSITION])})
+                      {v: (target, weights @ topo.vertex_data[list(parents), POSITION])},
+                      span=current if isinstance(current, tuple) else None)
     return weights
 
 
 #: A move checked in the current configuration (:func:`check_current`) keeps the ratio of
-#: each element's current to rest volume within the range of those it replaces (and 1),
-#: widened by this fraction. On organ_cut the exact range left 51 of 61 cut events with an
-#: element below 5 degrees (the blade's moves refused), this one 11, as without the check.
+#: each element's current to rest volume within the range of those it replaces (and 1), or a
+#: given span, widened by this fraction. On organ_cut the exact range left 51 of 61 cut events
+#: with an element below 5 degrees (the blade's moves refused), this one 11, as without it.
 STRAIN_SLACK = 0.1
 
 
-def check_current(topo: TetTopology, before, after, what: str, moved: dict | None = None) -> None:
+def check_current(topo: TetTopology, before, after, what: str, moved: dict | None = None,
+                  span: tuple | None = None) -> None:
     """Refuse a move that would replace elements ``before`` by ``after`` (vertex lists) unless
     ``after`` is well shaped in the current configuration, as :func:`_check` asks of the rest
     one, and no element of ``after`` is compressed or stretched beyond those of ``before``: the
     ratio of its current to rest volume stays within theirs (and 1), widened by
     :data:`STRAIN_SLACK`. ``moved`` maps a vertex to the (rest, current) positions (m) it
-    would take.
+    would take. ``span``: the (lowest, highest) ratio to keep within instead of theirs (a
+    caller making many moves passes the range of the elements before any of them, so that
+    the slack does not compound).
 
     The improvement after a cut moves and flips in the rest configuration and carries the
     current positions by the same weights. In a body deformed far from rest, that can invert
@@ -584,12 +589,14 @@ def check_current(topo: TetTopology, before, after, what: str, moved: dict | Non
         return [np.einsum("ij,ij->i", np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), c[:, 3] - c[:, 0]) / 6.0
                 for c in (rest, now)], now
 
-    (rest0, now0), _ = volumes(before, None)
+    if span is None:
+        (rest0, now0), _ = volumes(before, None)
+        span = (float((now0 / rest0).min()), float((now0 / rest0).max()))
     (rest1, now1), corners = volumes(after, moved)
     q = tet_qualities(corners)
-    ratio0, ratio1 = now0 / rest0, now1 / rest1
-    low = min(1.0, float(ratio0.min())) * (1.0 - STRAIN_SLACK)
-    high = max(1.0, float(ratio0.max())) * (1.0 + STRAIN_SLACK)
+    ratio1 = now1 / rest1
+    low = min(1.0, span[0]) * (1.0 - STRAIN_SLACK)
+    high = max(1.0, span[1]) * (1.0 + STRAIN_SLACK)
     bad = ~(q > DEGENERATE_TOL) | ~(ratio1 >= low) | ~(ratio1 <= high)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
