@@ -76,6 +76,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..mesh import tet_volumes
 from .mesh import TetTopology, TopologyError, face_key
 from .operators import (apply_contraction, boundary_plane_count, check_contraction, check_current, check_vertex_move,
                         flip23, move_vertex, remove_edge)
@@ -322,7 +323,7 @@ class _Sines:
         unknown = [t for t in slots if t not in self.spans]
         if unknown:
             index = self.topo.tets[unknown]
-            ratio = _volumes(self.topo.positions[index]) / _volumes(self.topo.rest_positions[index])
+            ratio = tet_volumes(self.topo.positions, index) / tet_volumes(self.topo.rest_positions, index)
             self.spans.update((t, (r, r)) for t, r in zip(unknown, ratio.tolist()))
         spans = [self.spans[t] for t in slots]
         return min(lo for lo, _ in spans), max(hi for _, hi in spans)
@@ -361,11 +362,6 @@ def _valid_now(sine: _Sines, removed, added) -> bool:
     sine.last_span = span
     return True
 
-
-def _volumes(corners: np.ndarray) -> np.ndarray:
-    """Signed volumes (m^3) of (M, 4, 3) tetrahedra."""
-    a, b, c, d = corners[:, 0], corners[:, 1], corners[:, 2], corners[:, 3]
-    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
 
 
 def _flip_edges(topo: TetTopology, t: int, frozen: set[int], accept, stats: ImproveStats) -> list[int]:

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from ..mesh import DEGENERATE_TOL
+from ..mesh import DEGENERATE_TOL, tet_volumes
 from .mesh import (NEAR_TIE, POSITION, REST, TetTopology, TopologyError, face_key, rounded32, signed_volume,
                    tet_quality, tet_quality_and_length)
 
@@ -582,12 +582,14 @@ def check_current(topo: TetTopology, before, after, what: str, moved: dict | Non
     and blow up (the S-example's synthetic capture, Bielser at epsilon 0, diverged so): strain,
     and energy, from nowhere."""
     def volumes(tets, moved):
+        """Rest and current volumes of ``tets``, vertices ``moved`` substituted, and the
+        current corners (M, 4, 3)."""
         index = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
         rest, now = topo.vertex_data[index, REST], topo.vertex_data[index, POSITION]
         for v, (x0, x) in (moved or {}).items():
             rest[index == v], now[index == v] = x0, x
-        return [np.einsum("ij,ij->i", np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), c[:, 3] - c[:, 0]) / 6.0
-                for c in (rest, now)], now
+        corners = np.arange(index.size).reshape(-1, 4)  # each element's own copies of its corners
+        return [tet_volumes(c.reshape(-1, 3), corners) for c in (rest, now)], now
 
     if span is None:
         (rest0, now0), _ = volumes(before, None)
