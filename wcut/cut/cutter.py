@@ -309,6 +309,8 @@ class Cutter:
         self._swept_triangles: list[np.ndarray] = []
         self._rest = False
         self._waiting_vertices: set[int] = set()  # of the elements a progressive cut leaves for later
+        #: this cut event's vertices split in two by the disconnection, and their copies (both ways)
+        self._split_pairs: dict[int, int] = {}
 
     def _longest_edge(self, slots: np.ndarray | None = None) -> float:
         """The longest rest edge (m) of the elements ``slots`` (default: all)."""
@@ -355,6 +357,7 @@ class Cutter:
         stats = CutStats()
         self._rest = rest
         self._waiting_vertices = set()
+        self._split_pairs = {}
         try:
             if progressive:
                 surface, slots = self._progressive_surface(surface, bounds)
@@ -723,6 +726,7 @@ class Cutter:
             parents = global_of[arrays.vertex_parents.numpy()[new, 0]].tolist()
             self.wound_vertices.update(global_of[new].tolist(), parents)
             self.split_vertices.update(c for c, v in zip(global_of[new].tolist(), parents) if v in self.split_vertices)
+            self._pair(zip(parents, global_of[new].tolist()))
         stats.unsewn_faces += len(faces)
         stats.duplicated_vertices += copies
 
@@ -1049,10 +1053,22 @@ class Cutter:
         made by a split where v was). Returns the new vertices."""
         copies = duplicate_vertex(self.topology, v)
         stats.duplicated_vertices += len(copies)
+        self._pair((v, c) for c in copies)
         self.wound_vertices.update(copies, (v,))
         if v in self.split_vertices:
             self.split_vertices.update(copies)
         return copies
+
+    def _pair(self, copies) -> None:
+        """Record (original, copy) pairs of the disconnection: a vertex split into two fans and
+        its copy are twins (:meth:`_improve`); one split into more has none."""
+        count: dict[int, int] = {}
+        made = list(copies)
+        for v, _ in made:
+            count[v] = count.get(v, 0) + 1
+        for v, c in made:
+            if count[v] == 1:
+                self._split_pairs[v], self._split_pairs[c] = c, v
 
     def _separate_sheets(self, surface: TriangleSurface, stats: CutStats) -> None:
         """Make sure a triangulated S left no sewn face between elements on its two sides.
@@ -1270,6 +1286,10 @@ class Cutter:
             for v in frozen:
                 copies.setdefault(topo.rest_tuples[v], []).append(v)
             twins = {v: w for pair in copies.values() if len(pair) == 2 for v, w in (pair, pair[::-1])}
+            # where this cut meets an earlier wound, four copies share a rest position: the
+            # pairs this cut split are the twins of its lips
+            pairs = self._split_pairs
+            twins.update((v, w) for v, w in pairs.items() if pairs.get(w) == v and v in frozen and w in frozen)
         if not self.smooths_under_blade:
             frozen |= self._waiting_vertices
         coordinates, tolerance = self.coordinates(), self.tolerance
