@@ -64,12 +64,43 @@ def random_plane(mesh: TetMesh, rng) -> Plane:
     return Plane(point, normal)
 
 
+#: The issue's quality target: after a cut, the worst dihedral angle is at least
+#: min(TARGET_DEGREES, half the worst of the mesh it cut).
+TARGET_DEGREES = 5.0
+
+
+def domain_wedge(vertices: np.ndarray, tets: np.ndarray) -> float:
+    """The smallest interior angle (degrees) of the meshed domain at an edge of its boundary:
+    the sum of the dihedral angles of the elements around the edge. Every element at that edge
+    has a dihedral angle no larger, so no mesh of the same domain can have a better worst
+    angle (a plane meeting the boundary, or an earlier cut, at a small angle makes one)."""
+    angles = dihedral_angles(vertices, tets)
+    # dihedral_angles' column k is at the edge of the two corners outside the k-th face pair
+    ends = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
+    edges = np.sort(tets[:, ends], axis=2).reshape(-1, 2)
+    keys, index = np.unique(edges, axis=0, return_inverse=True)
+    total = np.bincount(index.ravel(), angles.ravel())
+    faces = np.sort(tets[:, [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]]].reshape(-1, 3), axis=1)
+    unique, counts = np.unique(faces, axis=0, return_counts=True)
+    outer = unique[counts == 1]
+    rims = np.unique(np.sort(outer[:, [[0, 1], [1, 2], [0, 2]]].reshape(-1, 2), axis=1), axis=0)
+    on_boundary = np.isin(keys.view([("", keys.dtype)] * 2).ravel(), rims.view([("", rims.dtype)] * 2).ravel())
+    return float(total[on_boundary].min())
+
+
 def one(mesh: TetMesh, planes: list[Plane], method: str, epsilon: float, improve: bool = True) -> dict:
+    """Cut a fresh copy of ``mesh`` by ``planes`` in a row. Besides separation, volume and the
+    final worst angle and smallest element, counts the cuts that leave the worst dihedral angle
+    below min(5 degrees, half the worst of the mesh that cut received) (``misses``), below
+    min(5, half the worst of ``mesh``) (``misses_input``), and those of the misses where the
+    domain itself has a wedge below the target (``forced``: :func:`domain_wedge`, no mesh of
+    it could meet the target)."""
     topo = TetTopology(mesh)
     cutter = Cutter(topo, method=method, epsilon=epsilon, improve=improve)
     volume = float(mesh.volumes().sum())
     median = float(np.median(mesh.volumes()))
-    record = {"separated": True, "error": "", "valid": True}
+    record = {"separated": True, "error": "", "valid": True, "misses": 0, "misses_input": 0, "forced": 0}
+    worst_input = worst = float(dihedral_angles(mesh.vertices, mesh.tets).min())
     for plane in planes:
         try:
             result = cutter.cut(plane)
@@ -87,6 +118,11 @@ def one(mesh: TetMesh, planes: list[Plane], method: str, epsilon: float, improve
                                   mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
         record["separated"] &= s.separated
         record["reach"] = max(record.get("reach", 0.0), s.deepest_reach)
+        before, worst = worst, float(dihedral_angles(after.vertices, after.tets).min())
+        record["misses"] += worst < min(TARGET_DEGREES, before / 2)
+        record["misses_input"] += worst < min(TARGET_DEGREES, worst_input / 2)
+        if worst < min(TARGET_DEGREES, before / 2):
+            record["forced"] += domain_wedge(after.vertices, after.tets) < min(TARGET_DEGREES, before / 2)
     volumes = after.volumes()
     record.update(volume_change=abs(float(volumes.sum()) - volume) / volume,
                   min_dihedral=float(dihedral_angles(after.vertices, after.tets).min()),
@@ -123,6 +159,8 @@ def main(argv=None) -> int:
                        "max_volume_change": max((r["volume_change"] for r in ok), default=0.0),
                        "worst_dihedral": min((r["min_dihedral"] for r in ok), default=float("nan")),
                        "below_1deg": sum(r["min_dihedral"] < 1.0 for r in ok),
+                       "misses": sum(r["misses"] for r in ok), "misses_input": sum(r["misses_input"] for r in ok),
+                       "forced": sum(r["forced"] for r in ok),
                        "min_volume_rel": min((r["min_volume"] for r in ok), default=float("nan")),
                        "seconds": round(time.perf_counter() - start, 1)}
                 rows.append(row)

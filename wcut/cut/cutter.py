@@ -1338,8 +1338,7 @@ class Cutter:
         # the elements the blade is still in keep their connectivity until a later increment cuts them
         result = improve_mesh(topo, work, frozen, target=self.improve_target, min_volume=self.improve_min_volume,
                               twins=twins, pinned=self._waiting_vertices, may_move=off_the_cut, may_bend=within_band,
-                              may_make=apart,
-                              contract=True)
+                              may_make=apart, contract=True, on_surface=set(on))
         if result.contracted:  # the vertices merged into others go; the last ones take their numbers
             dropped, moved = topo.drop_orphans()
             for name in ("split_vertices", "wound_vertices", "_waiting_vertices"):

@@ -58,7 +58,9 @@ elements it replaces or reshapes and leaves no sine below the target or below th
 worst element never gets worse and growing an element never makes a sliver; every move keeps
 the rest volume, the outer boundary and the cut surface (a bent one within its band): a flip
 of a boundary edge only where its boundary faces are coplanar, no flip removes an edge or a
-face whose vertices are all frozen. The caller keeps the sides of the cut apart: the cutter
+face whose vertices are all on the cut surface (an edge between vertices of earlier wounds
+may flip: on a chain of three cuts through a poor beam, locking those left a sliver of 1.4
+degrees spanning two wounds). The caller keeps the sides of the cut apart: the cutter
 refuses a smoothing move that ends within the surface's tolerance or crosses it, and a flip
 that makes an element with an edge across it (without either, half of the organ's plane cuts
 at epsilon 0 were left joined). In a deformed body (current positions not the rest ones) a
@@ -189,7 +191,7 @@ def _volume_scale(target: float, min_volume: float) -> float | None:
 
 def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TARGET_ANGLE,
             min_volume: float = 0.0, twins: dict[int, int] | None = None, pinned=frozenset(), may_move=None,
-            may_bend=None, may_make=None, contract: bool = False) -> ImproveStats:
+            may_bend=None, may_make=None, contract: bool = False, on_surface=None) -> ImproveStats:
     """Improve live elements ``elements`` (slots) whose smallest dihedral angle is below
     ``target`` (degrees) or whose rest volume is below ``min_volume`` (m^3), and what the
     moves make. ``frozen``: vertices that must not move alone (the cut surface). ``twins``: the
@@ -208,9 +210,13 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     ``may_make(tets)``: whether a flip or a contraction may make these elements (vertex lists;
     the cutter refuses one with an edge across the cut surface). ``contract``: contract edges
     too, merging a vertex made in the change being recorded (``topo.begin_change``) into a
-    neighbour; the caller drops the vertices left without elements (``topo.drop_orphans``)."""
+    neighbour; the caller drops the vertices left without elements (``topo.drop_orphans``).
+    ``on_surface``: the vertices on the cut surface, between which no edge or face flips (a
+    face of the surface the cut has not opened yet, or an edge on it); ``frozen`` by default.
+    Those of an earlier wound are not among them: an edge between two of its lips' vertices
+    is either on its boundary, which only a flip keeping the boundary removes, or inside."""
     stats = ImproveStats()
-    unflipped = frozen | set(pinned) if pinned else frozen
+    unflipped = set(frozen if on_surface is None else on_surface) | set(pinned)
     goal = math.sin(math.radians(target))
     sine = _Sines(topo, goal, _volume_scale(target, min_volume))
     # a deformed body: every move keeps its elements valid in the current configuration too
