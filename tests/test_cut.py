@@ -1042,6 +1042,33 @@ def test_a_curved_boundary_holds_the_cut_off_a_corner_too_small_for_its_pieces(p
     assert (min(smallest) > 1e-3) == (pieces > 1.0), smallest
 
 
+# straight blades through the organ (centre, direction of travel, along the edge; m), and
+# the increments they take
+ORGAN_BLADES = [
+    ((0.02179, -0.004077, 0.002336), (0.791311, 0.132033, -0.596988), (0.560165, 0.234755, 0.794421), 20),
+    ((-0.003626, 0.008542, -0.004342), (0.037044, 0.845963, 0.531953), (0.656772, -0.421816, 0.625077), 30),
+]
+
+
+@pytest.mark.parametrize("centre, travel, edge, steps", ORGAN_BLADES)
+def test_a_straight_blade_cuts_the_organ_in_two(centre, travel, edge, steps):
+    """Where the blade's cut bends through vertices held a little off it, flat elements about
+    in S joined the two sides at a vertex that no winding number put on both: these two
+    blades (of 72 through the organ, 12 to 30 increments) left it in one piece; the second
+    one's hinge lies where the blade's front was when the vertex was cut, and is opened once
+    the blade has passed (Cutter._separate_swept)."""
+    organ = TetMesh.load(Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "organ.vtu")
+    c, d, e, length = np.array(centre), np.array(travel), np.array(edge), 0.2033
+    sweep = SweptBlade(np.array([[c + s * d * length - 0.6 * e * length, c + s * d * length + 0.6 * e * length]
+                                 for s in np.linspace(-0.6, 0.6, steps)]))
+    topo = TetTopology(organ)
+    cutter = Cutter(topo, epsilon=0.1)
+    for k in range(1, sweep.frame_count):
+        cutter.cut(sweep.increment(k), progressive=True)
+    check_topology(topo, organ.volumes().sum(), volume_tolerance=1e-9)
+    assert len(np.bincount(connected_components(topo.to_mesh()))) == 2
+
+
 #: elements a progressive cut may add per element of the uncut mesh its swept surface crosses
 #: (measured on bent beams cut in 4-60 increments: paulus 1.6-8.3, Bielser 6-15)
 ADDED_PER_CROSSED = 20
