@@ -1193,7 +1193,7 @@ class Cutter:
             if surface is None:
                 return
         band = CAP_HOLD * self.hold_distance * self.mean_edge_length + self.tolerance
-        vertices = vertices[surface.distance(x[vertices], band) <= band] if len(vertices) else vertices
+        vertices = vertices[surface.distance(x[vertices], band) <= band]
         if not len(vertices):
             return
         slots = np.array(sorted(set().union(*(topo.vertex_tets[v] for v in vertices.tolist()))), dtype=np.int64)
@@ -1215,9 +1215,20 @@ class Cutter:
         joined = joined[inside]
         if not len(joined):
             return
+        _, faces = self._between_sides(slots, sides, set(joined.tolist()))
+        opened = self._keep_attached(faces, _TopologyFaces(topo), any_shape=True)
+        stats.separated_vertices += self._open(opened, stats)
+        if opened:
+            sew_unopened(topo)
+
+    def _between_sides(self, slots: np.ndarray, sides: np.ndarray, among=None) -> tuple[list[int], list]:
+        """Where elements ``slots`` on sides ``sides`` (+1 / -1; 0 for one lying in the cut,
+        which takes the side of a sewn neighbour) meet at a vertex (of ``among``, if given):
+        those vertices, and the sewn faces at them between elements on opposite sides."""
+        topo = self.topology
         side_of = dict(zip(slots.tolist(), sides.tolist()))
         stack = [t for t, side in side_of.items() if side]
-        while stack:  # elements about in S take the side of a sewn neighbour
+        while stack:
             t = stack.pop()
             for key in topo.slot_face_keys[t]:
                 owners = topo.face_tets[key]
@@ -1227,33 +1238,33 @@ class Cutter:
                         side_of[n] = side_of[t]
                         stack.append(n)
         sides = np.array([side_of[t] for t in slots.tolist()])
+        joined = [v for v in _on_both_sides(topo.tets[slots], sides, topo.vertex_count).tolist()
+                  if among is None or v in among]
         faces = set()
-        for v in np.intersect1d(_on_both_sides(tets, sides, topo.vertex_count), joined).tolist():
+        for v in joined:
             for t in topo.vertex_tets[v]:
                 for key in topo.slot_face_keys[t]:
                     owners = topo.face_tets[key]
                     if v in key and len(owners) == 2 and key not in topo.unsewn \
                             and side_of.get(owners[0], 0) * side_of.get(owners[1], 0) < 0:
                         faces.add(key)
-        opened = self._keep_attached(sorted(faces), _TopologyFaces(topo), any_shape=True)
-        stats.separated_vertices += self._open(opened, stats)
-        if opened:
-            sew_unopened(topo)
+        return joined, sorted(faces)
 
     @staticmethod
-    def _inside_flat(surface: TriangleSurface, points: np.ndarray, normals: np.ndarray, reach: np.ndarray) -> np.ndarray:
-        """(M,) whether S is within :data:`SWEPT_BEND` degrees of the plane of ``normals`` (M, 3)
-        over its triangles within ``reach`` (M,) (m) of ``points`` (M, 3) (m), and its boundary
-        is farther than ``reach``."""
+    def _inside_flat(surface: TriangleSurface, points: np.ndarray, normals: np.ndarray,
+                     reach: np.ndarray) -> np.ndarray:
+        """(M,) whether S's triangles within ``reach`` (M,) (m) of ``points`` (M, 3) (m) turn less
+        than :data:`SWEPT_BEND` degrees from ``normals`` (M, 3) (S is oriented: the other sheet
+        of a fold turns 180), and S's boundary is farther than ``reach``."""
         rim = surface.vertices[_boundary_edges(surface.triangles)]  # (B, 2, 3)
         far = np.ones(len(points), dtype=bool)
         if len(rim):
             a, ab = rim[:, 0], rim[:, 1] - rim[:, 0]
-            for i, p in enumerate(points):
-                t = np.clip(np.einsum("bj,bj->b", p - a, ab) / np.maximum(np.einsum("bj,bj->b", ab, ab), 1e-300), 0, 1)
-                far[i] = np.linalg.norm(a + t[:, None] * ab - p, axis=1).min() > reach[i]
+            to = points[:, None] - a[None]  # (M, B, 3)
+            t = np.clip(np.einsum("mbj,bj->mb", to, ab) / np.maximum(np.einsum("bj,bj->b", ab, ab), 1e-300), 0, 1)
+            far = np.linalg.norm(to - t[..., None] * ab[None], axis=2).min(axis=1) > reach
         rows, tri = surface._near_pairs(points, reach)
-        cosine = np.abs(np.einsum("pj,pj->p", surface.normals[tri], normals[rows]))
+        cosine = np.einsum("pj,pj->p", surface.normals[tri], normals[rows])
         flat = np.ones(len(points), dtype=bool)
         np.logical_and.at(flat, rows, cosine >= np.cos(np.radians(SWEPT_BEND)))
         return far & flat
@@ -1343,27 +1354,10 @@ class Cutter:
         sides = element_sides(d, self.in_plane * self.mean_edge_length)
         if not len(_on_both_sides(tets, sides, topo.vertex_count)):
             return
-        side_of = dict(zip(slots.tolist(), sides.tolist()))
-        stack = [t for t, s in side_of.items() if s]
-        while stack:  # elements in the plane take the side of a sewn neighbour
-            t = stack.pop()
-            for key in topo.slot_face_keys[t]:
-                owners = topo.face_tets[key]
-                if len(owners) == 2 and key not in topo.unsewn:
-                    n = owners[1] if owners[0] == t else owners[0]
-                    if side_of.get(n, 1) == 0:
-                        side_of[n] = side_of[t]
-                        stack.append(n)
-        sides = np.array([side_of[t] for t in slots.tolist()])
-        joined = _on_both_sides(tets, sides, topo.vertex_count).tolist()
-        for v in joined:
-            for t in topo.vertex_tets[v]:
-                for key in topo.slot_face_keys[t]:
-                    owners = topo.face_tets[key]
-                    if v in key and len(owners) == 2 and key not in topo.unsewn \
-                            and side_of.get(owners[0], 0) * side_of.get(owners[1], 0) < 0:
-                        unsew_face(topo, key)
-                        stats.unsewn_faces += 1
+        joined, faces = self._between_sides(slots, sides)
+        for key in faces:
+            unsew_face(topo, key)
+        stats.unsewn_faces += len(faces)
         for v in joined:
             self._duplicate(v, stats)
         stats.separated_vertices += len(joined)
