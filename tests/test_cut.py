@@ -1047,16 +1047,19 @@ def test_a_curved_boundary_holds_the_cut_off_a_corner_too_small_for_its_pieces(p
 ORGAN_BLADES = [
     ((0.02179, -0.004077, 0.002336), (0.791311, 0.132033, -0.596988), (0.560165, 0.234755, 0.794421), 20),
     ((-0.003626, 0.008542, -0.004342), (0.037044, 0.845963, 0.531953), (0.656772, -0.421816, 0.625077), 30),
+    ((0.014191, -0.001767, -0.003207), (-0.19404, -0.492274, 0.848537), (-0.966043, 0.246324, -0.078008), 20),
 ]
 
 
 @pytest.mark.parametrize("centre, travel, edge, steps", ORGAN_BLADES)
 def test_a_straight_blade_cuts_the_organ_in_two(centre, travel, edge, steps):
     """Where the blade's cut bends through vertices held a little off it, flat elements about
-    in S joined the two sides at a vertex that no winding number put on both: these two
+    in S joined the two sides at a vertex that no winding number put on both: the first two
     blades (of 72 through the organ, 12 to 30 increments) left it in one piece; the second
     one's hinge lies where the blade's front was when the vertex was cut, and is opened once
-    the blade has passed (Cutter._separate_swept)."""
+    the blade has passed (Cutter._separate_swept). The third cut loose a piece of one small
+    element, all of whose faces but one lay on the bent cut: a blade keeps any small piece
+    attached (Cutter._keep_attached with any_shape), not only slivers."""
     organ = TetMesh.load(Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "organ.vtu")
     c, d, e, length = np.array(centre), np.array(travel), np.array(edge), 0.2033
     sweep = SweptBlade(np.array([[c + s * d * length - 0.6 * e * length, c + s * d * length + 0.6 * e * length]

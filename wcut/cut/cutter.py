@@ -834,7 +834,9 @@ class Cutter:
         near = self._on_surface(surface, x[keys], centroids)
         rows, ks, keys = rows[near], ks[near], keys[near]
         faces = list(zip(live[rows].tolist(), neighbors[rows, ks].tolist()))  # (t, n), t < n
-        opened = set(self._keep_attached(faces, _RegionFaces(arrays)))
+        # (a blade's: any small piece, as _separate_sheets keeps; one element of 6e-3 of the median,
+        # well shaped, came loose from the organ where the blade bent through held vertices)
+        opened = set(self._keep_attached(faces, _RegionFaces(arrays), any_shape=isinstance(surface, TriangleSurface)))
         kept = np.array([face in opened for face in faces], dtype=bool)
         return list(zip(live[rows[kept]].tolist(), ks[kept].tolist())), keys[kept]
 
@@ -1049,7 +1051,8 @@ class Cutter:
                 centroids = x[[[topo.tet(t) for t in sorted(topo.face_tets[key])] for key in keys]].mean(axis=2)
             near = self._on_surface(surface, x[np.asarray(keys)], centroids)
             opened = [key for key, ok in zip(keys, near.tolist()) if ok]
-        self._open(self._keep_attached(opened, _TopologyFaces(topo)), stats)
+        self._open(self._keep_attached(opened, _TopologyFaces(topo), any_shape=isinstance(surface, TriangleSurface)),
+                   stats)
         sew_unopened(topo)
 
     def _open(self, faces: list, stats: CutStats) -> int:
