@@ -1199,23 +1199,34 @@ class Cutter:
         vertices = vertices[surface.distance(x[vertices], band) <= band]
         if not len(vertices):
             return
+        # first, who is far enough from S's boundary (twice its elements' reach): the others wait
+        stars = [sorted(topo.vertex_tets[v]) for v in vertices.tolist()]
+        rows = np.repeat(np.arange(len(vertices)), [len(star) for star in stars])
+        reach = np.zeros(len(vertices))
+        np.maximum.at(reach, rows, np.linalg.norm(x[topo.tets[np.concatenate(stars)]] - x[vertices][rows][:, None],
+                                                  axis=2).max(axis=1))
+        inside = _far_from_rim(surface, x[vertices], 2.0 * reach)
+        self._unsettled.update(vertices[~inside].tolist())  # (S's boundary may move on: a blade's front)
+        vertices, reach = vertices[inside], reach[inside]
+        if not len(vertices):
+            return
         slots = np.array(sorted(set().union(*(topo.vertex_tets[v] for v in vertices.tolist()))), dtype=np.int64)
         corners = x[topo.tets[slots]]  # (E, 4, 3)
-        reach = surface.distance(corners.reshape(-1, 3)).reshape(-1, 4)
-        farthest = np.take_along_axis(corners, reach.argmax(axis=1)[:, None, None], axis=1)[:, 0]
-        origin, normal = surface.tangent_planes(farthest)  # (the nearest triangle's side: S is oriented)
-        side = np.sign(np.einsum("ij,ij->i", farthest - origin, normal))
-        sides = np.where(reach.max(axis=1) > self.in_plane * self.mean_edge_length, side, 0).astype(np.int64)
-        tets = topo.tets[slots]
-        joined = np.intersect1d(_on_both_sides(tets, sides, topo.vertex_count), vertices)
+        distance, nearest = surface.nearest(corners.reshape(-1, 3))
+        distance, nearest = distance.reshape(-1, 4), nearest.reshape(-1, 4)
+        far = distance.argmax(axis=1)
+        farthest = corners[np.arange(len(slots)), far]
+        triangle = nearest[np.arange(len(slots)), far]  # (S is oriented: the side of its nearest triangle)
+        side = np.sign(np.einsum("ij,ij->i", farthest - surface.vertices[surface.triangles[triangle, 0]],
+                                 surface.normals[triangle]))
+        sides = np.where(distance.max(axis=1) > self.in_plane * self.mean_edge_length, side, 0).astype(np.int64)
+        joined = np.intersect1d(_on_both_sides(topo.tets[slots], sides, topo.vertex_count), vertices)
         if not len(joined):
             return
-        star_reach = np.array([np.linalg.norm(x[topo.tets[sorted(topo.vertex_tets[v])]] - x[v], axis=2).max()
-                               for v in joined.tolist()])
         _, normal = surface.tangent_planes(x[joined])
-        inside = self._inside_flat(surface, x[joined], normal, 2.0 * star_reach)
-        self._unsettled.update(joined[~inside].tolist())  # (S's boundary may move on: a blade's)
-        joined = joined[inside]
+        flat = _flat_near(surface, x[joined], normal, 2.0 * reach[np.searchsorted(vertices, joined)])
+        self._unsettled.update(joined[~flat].tolist())
+        joined = joined[flat]
         if not len(joined):
             return
         _, faces = self._between_sides(slots, sides, set(joined.tolist()))
@@ -1252,25 +1263,6 @@ class Cutter:
                             and side_of.get(owners[0], 0) * side_of.get(owners[1], 0) < 0:
                         faces.add(key)
         return joined, sorted(faces)
-
-    @staticmethod
-    def _inside_flat(surface: TriangleSurface, points: np.ndarray, normals: np.ndarray,
-                     reach: np.ndarray) -> np.ndarray:
-        """(M,) whether S's triangles within ``reach`` (M,) (m) of ``points`` (M, 3) (m) turn less
-        than :data:`SWEPT_BEND` degrees from ``normals`` (M, 3) (S is oriented: the other sheet
-        of a fold turns 180), and S's boundary is farther than ``reach``."""
-        rim = surface.vertices[_boundary_edges(surface.triangles)]  # (B, 2, 3)
-        far = np.ones(len(points), dtype=bool)
-        if len(rim):
-            a, ab = rim[:, 0], rim[:, 1] - rim[:, 0]
-            to = points[:, None] - a[None]  # (M, B, 3)
-            t = np.clip(np.einsum("mbj,bj->mb", to, ab) / np.maximum(np.einsum("bj,bj->b", ab, ab), 1e-300), 0, 1)
-            far = np.linalg.norm(to - t[..., None] * ab[None], axis=2).min(axis=1) > reach
-        rows, tri = surface._near_pairs(points, reach)
-        cosine = np.einsum("pj,pj->p", surface.normals[tri], normals[rows])
-        flat = np.ones(len(points), dtype=bool)
-        np.logical_and.at(flat, rows, cosine >= np.cos(np.radians(SWEPT_BEND)))
-        return far & flat
 
     def _on_surface(self, surface: CutSurface, corners: np.ndarray, centroids: np.ndarray | None) -> np.ndarray:
         """(F,) whether each face, with ``corners`` (F, 3, 3) (m) all on the cut, lies on the
@@ -1485,6 +1477,28 @@ def _improve_goals(topology: TetTopology) -> tuple[float, float]:
         return target, 0.0
     volumes = tet_volumes(rest, tets)
     return target, float(min(IMPROVE_MIN_VOLUME_FRACTION * np.median(volumes), volumes.min()))
+
+
+def _far_from_rim(surface: TriangleSurface, points: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(M,) whether S's boundary is farther than ``reach`` (M,) (m) from ``points`` (M, 3) (m)."""
+    rim = surface.vertices[_boundary_edges(surface.triangles)]  # (B, 2, 3)
+    if not len(rim):
+        return np.ones(len(points), dtype=bool)
+    a, ab = rim[:, 0], rim[:, 1] - rim[:, 0]
+    to = points[:, None] - a[None]  # (M, B, 3)
+    t = np.clip(np.einsum("mbj,bj->mb", to, ab) / np.maximum(np.einsum("bj,bj->b", ab, ab), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(to - t[..., None] * ab[None], axis=2).min(axis=1) > reach
+
+
+def _flat_near(surface: TriangleSurface, points: np.ndarray, normals: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(M,) whether S's triangles within ``reach`` (M,) (m) of ``points`` (M, 3) (m) turn less than
+    :data:`SWEPT_BEND` degrees from ``normals`` (M, 3) (S is oriented: the other sheet of a fold
+    turns 180)."""
+    rows, tri = surface._near_pairs(points, reach)
+    flat = np.ones(len(points), dtype=bool)
+    np.logical_and.at(flat, rows, np.einsum("pj,pj->p", surface.normals[tri], normals[rows])
+                      >= np.cos(np.radians(SWEPT_BEND)))
+    return flat
 
 
 def _on_both_sides(tets: np.ndarray, sides: np.ndarray, vertex_count: int) -> np.ndarray:
