@@ -119,13 +119,13 @@ def one(mesh: TetMesh, planes: list[Plane], method: str, epsilon: float, improve
         record["separated"] &= s.separated
         record["reach"] = max(record.get("reach", 0.0), s.deepest_reach)
         before, worst = worst, float(dihedral_angles(after.vertices, after.tets).min())
-        record["misses"] += worst < min(TARGET_DEGREES, before / 2)
+        target = min(TARGET_DEGREES, before / 2)
+        if worst < target:
+            record["misses"] += 1
+            record["forced"] += domain_wedge(after.vertices, after.tets) < target
         record["misses_input"] += worst < min(TARGET_DEGREES, worst_input / 2)
-        if worst < min(TARGET_DEGREES, before / 2):
-            record["forced"] += domain_wedge(after.vertices, after.tets) < min(TARGET_DEGREES, before / 2)
     volumes = after.volumes()
-    record.update(volume_change=abs(float(volumes.sum()) - volume) / volume,
-                  min_dihedral=float(dihedral_angles(after.vertices, after.tets).min()),
+    record.update(volume_change=abs(float(volumes.sum()) - volume) / volume, min_dihedral=worst,
                   min_volume=float(volumes.min()) / median, elements=after.tet_count)
     return record
 
