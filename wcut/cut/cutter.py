@@ -56,7 +56,7 @@ from ..topology.mesh import signed_volume
 from ..topology.operators import boundary_plane_count, check_vertex_move
 from ..topology.region import OUTSIDE, TetRegion
 from .separation import IN_PLANE, element_sides
-from .surface import CutSurface, Plane, TriangleSurface, box_tree
+from .surface import CutSurface, Plane, TriangleSurface, _point_segment_distance, box_tree
 
 METHODS = ("paulus", "bielser", "snap", "delete")
 
@@ -1210,7 +1210,7 @@ class Cutter:
         vertices, reach = vertices[inside], reach[inside]
         if not len(vertices):
             return
-        slots = np.array(sorted(set().union(*(topo.vertex_tets[v] for v in vertices.tolist()))), dtype=np.int64)
+        slots = np.unique(np.concatenate([star for star, ok in zip(stars, inside.tolist()) if ok])).astype(np.int64)
         corners = x[topo.tets[slots]]  # (E, 4, 3)
         distance, nearest = surface.nearest(corners.reshape(-1, 3))
         distance, nearest = distance.reshape(-1, 4), nearest.reshape(-1, 4)
@@ -1484,10 +1484,10 @@ def _far_from_rim(surface: TriangleSurface, points: np.ndarray, reach: np.ndarra
     rim = surface.vertices[_boundary_edges(surface.triangles)]  # (B, 2, 3)
     if not len(rim):
         return np.ones(len(points), dtype=bool)
-    a, ab = rim[:, 0], rim[:, 1] - rim[:, 0]
-    to = points[:, None] - a[None]  # (M, B, 3)
-    t = np.clip(np.einsum("mbj,bj->mb", to, ab) / np.maximum(np.einsum("bj,bj->b", ab, ab), 1e-300), 0.0, 1.0)
-    return np.linalg.norm(to - t[..., None] * ab[None], axis=2).min(axis=1) > reach
+    count = len(rim)  # every point against every rim edge, as rows
+    distance = _point_segment_distance(np.repeat(points, count, axis=0), np.tile(rim[:, 0], (len(points), 1)),
+                                       np.tile(rim[:, 1], (len(points), 1)))
+    return distance.reshape(len(points), count).min(axis=1) > reach
 
 
 def _flat_near(surface: TriangleSurface, points: np.ndarray, normals: np.ndarray, reach: np.ndarray) -> np.ndarray:

@@ -369,7 +369,6 @@ def _valid_now(sine: _Sines, removed, added) -> bool:
     return True
 
 
-
 def _flip_edges(topo: TetTopology, t: int, frozen: set[int], accept, stats: ImproveStats) -> list[int]:
     """A general flip of one of element t's edges that raises the worst sine of its ring."""
     tet = topo.tet(t)
