@@ -17,9 +17,9 @@ tool = load_tool("cut_separation")
 
 def test_the_wedge_of_a_box_is_a_right_angle_and_of_one_element_its_worst_angle():
     box = beam(2, 2, 2, size=(1.0, 1.0, 1.0))
-    assert math.isclose(tool.domain_wedge(box.vertices, box.tets), 90.0, abs_tol=1e-9)
+    assert math.isclose(tool.domain_wedge(box), 90.0, abs_tol=1e-9)
     tet = single_tet()
-    assert math.isclose(tool.domain_wedge(tet.vertices, tet.tets), dihedral_angles(tet.vertices, tet.tets).min(),
+    assert math.isclose(tool.domain_wedge(tet), dihedral_angles(tet.vertices, tet.tets).min(),
                         abs_tol=1e-9)
 
 
@@ -30,7 +30,7 @@ def test_a_plane_at_sixty_degrees_to_two_faces_makes_a_wedge_of_sixty():
     topo = TetTopology(box)
     Cutter(topo, epsilon=0.0).cut(plane)
     after = topo.to_mesh()
-    assert math.isclose(tool.domain_wedge(after.vertices, after.tets), 60.0, abs_tol=1e-6)
+    assert math.isclose(tool.domain_wedge(after), 60.0, abs_tol=1e-6)
 
 
 def test_a_chain_counts_each_cut_against_the_target():

@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 from wcut.cut import Cutter, Plane  # noqa: E402
 from wcut.cut.separation import plane_separation  # noqa: E402
 from wcut.errors import WcutError  # noqa: E402
-from wcut.mesh import TetMesh, beam, dihedral_angles, perturbed  # noqa: E402
+from wcut.mesh import TetMesh, beam, dihedral_angles, perturbed, unique_rows  # noqa: E402
 from wcut.topology import TetTopology, check_topology  # noqa: E402
 
 
@@ -69,22 +69,19 @@ def random_plane(mesh: TetMesh, rng) -> Plane:
 TARGET_DEGREES = 5.0
 
 
-def domain_wedge(vertices: np.ndarray, tets: np.ndarray) -> float:
+def domain_wedge(mesh: TetMesh) -> float:
     """The smallest interior angle (degrees) of the meshed domain at an edge of its boundary:
     the sum of the dihedral angles of the elements around the edge. Every element at that edge
     has a dihedral angle no larger, so no mesh of the same domain can have a better worst
     angle (a plane meeting the boundary, or an earlier cut, at a small angle makes one)."""
-    angles = dihedral_angles(vertices, tets)
+    angles = dihedral_angles(mesh.vertices, mesh.tets)
     # dihedral_angles' column k is at the edge of the two corners outside the k-th face pair
     ends = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
-    edges = np.sort(tets[:, ends], axis=2).reshape(-1, 2)
-    keys, index = np.unique(edges, axis=0, return_inverse=True)
+    edges = np.sort(mesh.tets[:, ends], axis=2).reshape(-1, 2)
+    keys, index = unique_rows(edges, mesh.vertex_count, return_inverse=True)
     total = np.bincount(index.ravel(), angles.ravel())
-    faces = np.sort(tets[:, [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]]].reshape(-1, 3), axis=1)
-    unique, counts = np.unique(faces, axis=0, return_counts=True)
-    outer = unique[counts == 1]
-    rims = np.unique(np.sort(outer[:, [[0, 1], [1, 2], [0, 2]]].reshape(-1, 2), axis=1), axis=0)
-    on_boundary = np.isin(keys.view([("", keys.dtype)] * 2).ravel(), rims.view([("", rims.dtype)] * 2).ravel())
+    rims = np.sort(mesh.boundary().triangles[:, [[0, 1], [1, 2], [0, 2]]].reshape(-1, 2), axis=1)
+    on_boundary = np.isin(keys @ [mesh.vertex_count, 1], rims @ [mesh.vertex_count, 1])
     return float(total[on_boundary].min())
 
 
@@ -122,7 +119,7 @@ def one(mesh: TetMesh, planes: list[Plane], method: str, epsilon: float, improve
         target = min(TARGET_DEGREES, before / 2)
         if worst < target:
             record["misses"] += 1
-            record["forced"] += domain_wedge(after.vertices, after.tets) < target
+            record["forced"] += domain_wedge(after) < target
         record["misses_input"] += worst < min(TARGET_DEGREES, worst_input / 2)
     volumes = after.volumes()
     record.update(volume_change=abs(float(volumes.sum()) - volume) / volume, min_dihedral=worst,
