@@ -227,3 +227,30 @@ def test_fracture_scenes_tear_the_sheet_validly(tmp_path, monkeypatch, name):
         assert connected_components(fracture.mesh).max() == 1  # two pieces
     elif name == "lshape_fracture":
         assert first == pytest.approx([0.05, 0.05, 0.0], abs=1e-9)
+
+
+def test_organ_cut_leaves_well_shaped_elements_after_every_cut(tmp_path, monkeypatch):
+    """The whole incision: after every cut event the worst dihedral angle is at least 5 degrees
+    and no element is below 1e-3 of the median rest volume (the targets of a cut; the organ's
+    own worst angle is 22.8 degrees). Measured: 43 events, the worst 6.01 degrees, where the
+    blade leaves the organ (4.28 while no edge from the wound to an element under the blade
+    could flip), the smallest element 2.0e-3 of the median."""
+    import wcut.blade
+    from wcut.mesh import dihedral_angles, tet_volumes
+
+    worst, smallest = [], []
+    cut = wcut.blade.Blade.cut
+
+    def recording(self, state, start, end):
+        change = cut(self, state, start, end)
+        if change is not None:
+            topo = self.topology
+            corners = topo.tets[topo.live_tets()]
+            volumes = tet_volumes(topo.rest_positions, corners)
+            worst.append(float(dihedral_angles(topo.rest_positions, corners).min()))
+            smallest.append(float(volumes.min() / np.median(volumes)))
+        return change
+
+    monkeypatch.setattr(wcut.blade.Blade, "cut", recording)
+    run_recording_blade(load_scene(SCENES / "organ_cut.toml"), tmp_path / "organ_cut.usdc")
+    assert len(worst) > 30 and min(worst) > 5.0 and min(smallest) > 1e-3

@@ -1378,7 +1378,9 @@ class Cutter:
             return  # (most of a clean mesh's cut events: nothing to set up)
         x = self.coordinates()[candidates]
         on = candidates[surface.distance(x, self.tolerance) <= self.tolerance].tolist()
-        frozen = set(on) | (vertices & (self.wound_vertices | self.split_vertices))
+        # every wound vertex the improvement reaches: one moved alone would slide one lip only
+        reached = set(np.unique(topo.tets[sorted(work)]).tolist())
+        frozen = set(on) | (reached & (self.wound_vertices | self.split_vertices))
         twins = None
         if self.curved_boundary:
             frozen |= {v for v in vertices if topo.is_boundary_vertex(v)}
