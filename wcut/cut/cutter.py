@@ -415,6 +415,12 @@ class Cutter:
         return min(max(self.epsilon, MIN_SNAP), CURVED_HOLD)
 
     @property
+    def wound_band(self) -> float:
+        """Distance (m) from the surface within which a cut bent through held vertices
+        (:meth:`_hold`, up to :data:`CAP_HOLD` times :attr:`hold_distance`) stays."""
+        return CAP_HOLD * self.hold_distance * self.mean_edge_length + self.tolerance
+
+    @property
     def in_plane(self) -> float:
         """Distance (relative to the mean edge length) within which an element lies in a cut
         plane, when a complete cut is checked (:mod:`wcut.cut.separation`): the distance at
@@ -1197,7 +1203,7 @@ class Cutter:
             surface = self._swept_near(x[vertices])
             if surface is None:
                 return
-        band = CAP_HOLD * self.hold_distance * self.mean_edge_length + self.tolerance
+        band = self.wound_band
         vertices = vertices[surface.distance(x[vertices], band) <= band]
         if not len(vertices):
             return
@@ -1398,7 +1404,7 @@ class Cutter:
         if not self.smooths_under_blade:
             frozen |= self._waiting_vertices
         coordinates, tolerance = self.coordinates(), self.tolerance
-        band = CAP_HOLD * self.hold_distance * self.mean_edge_length + tolerance
+        band = self.wound_band
 
         def targets(parents: list[list[int]], weights: list[list[float]]) -> np.ndarray:
             """(M, 3) where each move ends, in the cut's configuration (m)."""

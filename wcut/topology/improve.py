@@ -58,9 +58,10 @@ elements it replaces or reshapes and leaves no sine below the target or below th
 worst element never gets worse and growing an element never makes a sliver; every move keeps
 the rest volume, the outer boundary and the cut surface (a bent one within its band): a flip
 of a boundary edge only where its boundary faces are coplanar, no flip removes an edge or a
-face whose vertices are all on the cut surface (an edge between vertices of earlier wounds
-may flip: on a chain of three cuts through a poor beam, locking those left a sliver of 1.4
-degrees spanning two wounds). The caller keeps the sides of the cut apart: the cutter
+face whose vertices are all on the cut surface or all under a progressive blade, nor an edge
+of a wound's lip (:func:`_flip_lock`; an edge between vertices of earlier wounds through the
+body may flip: on a chain of three cuts through a poor beam, locking those left a sliver of
+1.4 degrees spanning two wounds). The caller keeps the sides of the cut apart: the cutter
 refuses a smoothing move that ends within the surface's tolerance or crosses it, and a flip
 that makes an element with an edge across it (without either, half of the organ's plane cuts
 at epsilon 0 were left joined). In a deformed body (current positions not the rest ones) a
