@@ -41,4 +41,5 @@ def test_a_chain_counts_each_cut_against_the_target():
     assert record["separated"] and not record["error"]
     assert record["misses"] == record["misses_input"] == record["forced"] == 0
     assert record["min_dihedral"] >= min(tool.TARGET_DEGREES, dihedral_angles(mesh.vertices, mesh.tets).min() / 2)
+    assert tool.TARGET_DEGREES <= record["worst_new"] < 90.0  # the elements the cuts made
     assert np.isfinite(record["volume_change"]) and record["volume_change"] < 1e-9

@@ -483,3 +483,45 @@ def test_the_wound_slides_along_its_rim_under_a_blade(rim, monkeypatch):
         monkeypatch.setattr(improve_module, "_rim_targets", lambda count: [])
     worst = _worst_under_blade(POOR_BEAM, _random_blades(POOR_BEAM, 30)[7])
     assert (worst > 4.5) == rim and worst > 3.0
+
+
+def test_a_wound_vertex_on_a_cavity_does_not_slide_off_the_plane():
+    """A plane through a vertex of a cavity inside the body (an element taken out of a
+    perturbed beam, as SOFA's ossicles have one): the vertex's copy on one lip is inside the
+    wound, the other also on the cavity's faces. The two slide off the plane together only
+    where both are inside the wound; sliding with the cavity's faces changed the volume by
+    5e-5 of itself."""
+    base = perturbed(beam(6, 3, 3, size=(0.06, 0.03, 0.03)), 0.3, 1)
+    lo, hi = base.vertices.min(axis=0), base.vertices.max(axis=0)
+    assert np.all((base.vertices[base.tets[113]] > lo) & (base.vertices[base.tets[113]] < hi))  # inside
+    mesh = TetMesh(base.vertices, np.delete(base.tets, 113, axis=0))
+    normal = np.array([0.18851919, -0.63319409, -0.37756351])
+    plane = Plane(base.vertices[38] + 2e-4 * normal / np.linalg.norm(normal), normal)
+    topo = TetTopology(mesh)
+    cutter = Cutter(topo, method="paulus", epsilon=0.1)
+    cutter.cut(plane)
+    check_topology(topo, mesh.volumes().sum(), volume_tolerance=1e-12)
+    assert_separates(topo, plane, cutter)
+
+
+@pytest.mark.parametrize("share, accepted", ((0.3, False), (0.6, True)))
+def test_mending_a_sliver_never_makes_an_element_below_half_the_smallest_volume(share, accepted):
+    """A move that replaces a large sliver (1 degree) by a well-shaped element of ``share`` of
+    the smallest volume raises the worst measure either way (the small element counts as a
+    sliver of sin(6 degrees) times its share); below half that volume it is refused."""
+    from wcut.topology.improve import SMALL_SHARE, _better, _Sines, _volume_scale
+
+    lift = math.tan(math.radians(1.0)) / 2.0
+    sliver = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 1.0, 0.0], [0.5, 0.4, lift]]
+    small = (np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 0.866, 0.0], [0.5, 0.289, 0.816]]) * 0.1
+             + [5.0, 0.0, 0.0])
+    mesh = TetMesh(np.vstack([sliver, small]), np.array([[0, 1, 2, 3], [4, 5, 6, 7]]))
+    volumes = mesh.volumes()
+    min_volume = volumes[1] / share
+    assert volumes[0] > min_volume and dihedral_angles(mesh.vertices, mesh.tets[:1]).min() < 2.0
+    topo = TetTopology(mesh)
+    sine = _Sines(topo, math.sin(math.radians(6.0)), _volume_scale(6.0, min_volume))
+    sine.prime([0, 1])
+    assert sine(1) > sine(0)  # the small element's measure is above the sliver's
+    assert (share >= SMALL_SHARE) == accepted
+    assert _better(sine)([0], [[4, 5, 6, 7]]) == accepted

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import sys
 import time
 from pathlib import Path
@@ -91,13 +92,16 @@ def one(mesh: TetMesh, planes: list[Plane], method: str, epsilon: float, improve
     below min(5 degrees, half the worst of the mesh that cut received) (``misses``), below
     min(5, half the worst of ``mesh``) (``misses_input``), and those of the misses where the
     domain itself has a wedge below the target (``forced``: :func:`domain_wedge`, no mesh of
-    it could meet the target)."""
+    it could meet the target). The worst angle of the elements the cuts made (none of
+    ``mesh``'s, ``worst_new``) tells what they did to a mesh whose own worst stays."""
     topo = TetTopology(mesh)
     cutter = Cutter(topo, method=method, epsilon=epsilon, improve=improve)
     volume = float(mesh.volumes().sum())
     median = float(np.median(mesh.volumes()))
     record = {"separated": True, "error": "", "valid": True, "misses": 0, "misses_input": 0, "forced": 0}
     worst_input = worst = float(dihedral_angles(mesh.vertices, mesh.tets).min())
+    record["worst_new"] = math.inf
+    own = {tuple(t) for t in np.sort(mesh.tets, axis=1).tolist()}
     for plane in planes:
         try:
             result = cutter.cut(plane)
@@ -115,7 +119,10 @@ def one(mesh: TetMesh, planes: list[Plane], method: str, epsilon: float, improve
                                   mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
         record["separated"] &= s.separated
         record["reach"] = max(record.get("reach", 0.0), s.deepest_reach)
-        before, worst = worst, float(dihedral_angles(after.vertices, after.tets).min())
+        angles = dihedral_angles(after.vertices, after.tets).min(axis=1)
+        before, worst = worst, float(angles.min())
+        made = [tuple(t) not in own for t in np.sort(after.tets, axis=1).tolist()]
+        record["worst_new"] = min(record["worst_new"], float(angles[made].min(initial=math.inf)))
         target = min(TARGET_DEGREES, before / 2)
         if worst < target:
             record["misses"] += 1
@@ -156,6 +163,8 @@ def main(argv=None) -> int:
                        "max_volume_change": max((r["volume_change"] for r in ok), default=0.0),
                        "worst_dihedral": min((r["min_dihedral"] for r in ok), default=float("nan")),
                        "below_1deg": sum(r["min_dihedral"] < 1.0 for r in ok),
+                       "worst_new": min((r["worst_new"] for r in ok), default=float("nan")),
+                       "new_below_5deg": sum(r["worst_new"] < TARGET_DEGREES for r in ok),
                        "misses": sum(r["misses"] for r in ok), "misses_input": sum(r["misses_input"] for r in ok),
                        "forced": sum(r["forced"] for r in ok),
                        "min_volume_rel": min((r["min_volume"] for r in ok), default=float("nan")),

@@ -54,8 +54,10 @@ sine is the target's times its share of that volume: a plane passing a tenth of 
 a vertex cuts off well-shaped elements of 1e-5 to 1e-3 of the median volume (every smallest
 element of ten plane cuts of four meshes made by others), and smoothing that vertex away
 from the plane grows them. Each move is made only if it raises the worst measure of the
-elements it replaces or reshapes and leaves no sine below the target or below theirs, so the
-worst element never gets worse and growing an element never makes a sliver; every move keeps
+elements it replaces or reshapes and leaves no sine below the target or below theirs, and no
+element below half the smallest volume or below theirs (:data:`SMALL_SHARE`), so the worst
+element never gets worse, growing an element never makes a sliver and mending a sliver never
+makes a small element; every move keeps
 the rest volume, the outer boundary and the cut surface (a bent one within its band): a flip
 of a boundary edge only where its boundary faces are coplanar, no flip removes an edge or a
 face whose vertices are all on the cut surface or all under a progressive blade, nor an edge
@@ -90,6 +92,12 @@ TARGET_ANGLE = 6.0
 #: Elements whose rest volume is below this fraction of the mesh's median are improved (by
 #: :class:`wcut.cut.Cutter`, which passes the volume).
 MIN_VOLUME_FRACTION = 2.0e-3
+
+#: A move never makes an element smaller than this share of the smallest volume the
+#: improvement aims for (``min_volume``), unless one it replaces is smaller: mending a sliver
+#: never makes a small element (without it, on SOFA's logo, Bielser's cuts traded slivers for
+#: elements of 5.6e-4 of the median).
+SMALL_SHARE = 0.5
 
 #: Passes over the elements still below the target, until one makes no move (each pass may
 #: create new poor neighbours, and retries only elements whose neighbourhood changed). On 20
@@ -168,8 +176,9 @@ def min_sines(corners: np.ndarray, volume_scale: float | None = None) -> np.ndar
     return _sines(corners, volume_scale)[0]
 
 
-def _sines(corners: np.ndarray, volume_scale: float | None) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`min_sines` with and without ``volume_scale``: (measure, sine)."""
+def _sines(corners: np.ndarray, volume_scale: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`min_sines` with and without ``volume_scale``, and the volume's part alone
+    (``volume_scale * 6 V``; infinite without it): (measure, sine, volume measure)."""
     c = np.asarray(corners, dtype=np.float64)
     edges = c[..., _EDGE_HEADS, :] - c[..., _EDGE_TAILS, :]  # e01 e02 e03 e12 e13 e23
     doubled = _norms(_crosses(edges[..., _FACE_U, :], edges[..., _FACE_V, :]))  # F0..F3
@@ -179,8 +188,9 @@ def _sines(corners: np.ndarray, volume_scale: float | None) -> tuple[np.ndarray,
     degenerate = doubled.prod(axis=-1) == 0.0
     least = np.where(degenerate, 0.0, sines.min(axis=-1))
     if volume_scale is None:
-        return least, least
-    return np.where(degenerate, 0.0, np.minimum(least, volume_scale * six_v)), least
+        return least, least, np.full_like(least, np.inf)
+    small = np.where(degenerate, 0.0, volume_scale * six_v)
+    return np.minimum(least, small), least, small
 
 
 def _volume_scale(target: float, min_volume: float) -> float | None:
@@ -291,8 +301,9 @@ class _Sines:
     configuration), remembered. The caller primes what each move makes or reshapes (moves
     report every such element), so a remembered value is always the element's current one.
 
-    A move must raise the worst measure of what it replaces and keep the worst sine above
-    ``goal`` or above what it was (:meth:`floor`): growing a small element never makes a sliver.
+    A move must raise the worst measure of what it replaces and keep the worst sine, and the
+    worst volume measure, above ``goal`` or above what it was (:meth:`floor`): growing a small
+    element never makes a sliver, and mending a sliver never makes a small element.
     """
 
     def __init__(self, topo: TetTopology, goal: float, volume_scale: float | None = None):
@@ -301,6 +312,7 @@ class _Sines:
         self.volume_scale = volume_scale
         self.known: dict[int, float] = {}
         self.known_sines: dict[int, float] = {}  # the sines alone, where volume_scale is given
+        self.known_smalls: dict[int, float] = {}  # and the volume measures alone
         self.current = False  # whether moves are checked in the current configuration too
         # per slot, the (lowest, highest) ratio of current to rest volume of the elements it
         # came from before this improvement (its own where no move made it): the range a move
@@ -321,10 +333,11 @@ class _Sines:
 
     def prime(self, slots) -> np.ndarray:
         """The sines of live element slots ``slots``, computed at once and remembered."""
-        values, sines = _sines(self.topo.rest_positions[self.topo.tets[slots]], self.volume_scale)
+        values, sines, smalls = _sines(self.topo.rest_positions[self.topo.tets[slots]], self.volume_scale)
         self.known.update(zip(slots, values.tolist()))
         if self.volume_scale is not None:
             self.known_sines.update(zip(slots, sines.tolist()))
+            self.known_smalls.update(zip(slots, smalls.tolist()))
         return values
 
     def span(self, slots) -> tuple[float, float]:
@@ -337,25 +350,37 @@ class _Sines:
         spans = [self.spans[t] for t in slots]
         return min(lo for lo, _ in spans), max(hi for _, hi in spans)
 
-    def of(self, tets) -> tuple[float, float]:
-        """The worst measure and the worst sine of elements ``tets`` (vertex lists)."""
-        measure, sine = _sines(self.topo.rest_positions[np.asarray(tets)], self.volume_scale)
-        return float(measure.min()), float(sine.min())
+    def of(self, tets) -> tuple[float, float, float]:
+        """The worst measure, sine and volume measure of elements ``tets`` (vertex lists)."""
+        measure, sine, small = _sines(self.topo.rest_positions[np.asarray(tets)], self.volume_scale)
+        return float(measure.min()), float(sine.min()), float(small.min())
 
-    def floor(self, slots) -> float:
-        """The worst sine a move that replaces or reshapes live elements ``slots`` may leave:
-        theirs, or ``goal`` where theirs is above."""
+    def floor(self, slots) -> tuple[float, float]:
+        """The worst sine and the worst volume measure a move that replaces or reshapes live
+        elements ``slots`` may leave: theirs, or ``goal`` where theirs is above."""
         if self.volume_scale is None:
-            return -math.inf
-        return min([self.goal] + [self._remembered(self.known_sines, t, None) for t in slots])
+            return -math.inf, -math.inf
+        sines = [self._remembered(self.known_sines, t, None) for t in slots]
+        smalls = [self._small(t) for t in slots]
+        return min([self.goal] + sines), min([SMALL_SHARE * self.goal] + smalls)
+
+    def _small(self, t: int) -> float:
+        """Element t's volume measure (``volume_scale * 6 V``), remembered."""
+        q = self.known_smalls.get(t)
+        if q is None:
+            rest = self.topo.rest_tuples
+            p0, p1, p2, p3 = [rest[v] for v in self.topo.tets[t].tolist()]
+            q = self.known_smalls[t] = self.volume_scale * _dot(_sub(p1, p0), _cross(_sub(p2, p0), _sub(p3, p0)))
+        return q
 
 
 def _better(sine: _Sines, may_make=None):
     """An ``accept`` for the flips: the new elements' worst measure exceeds the removed ones',
     their worst sine stays above :meth:`_Sines.floor`, and ``may_make`` (if given) allows them."""
     def accept(removed, added) -> bool:
-        measure, least = sine.of(added)
-        return measure > min(sine(t) for t in removed) + MIN_GAIN and least >= sine.floor(removed) and \
+        measure, least, small = sine.of(added)
+        floor, small_floor = sine.floor(removed)
+        return measure > min(sine(t) for t in removed) + MIN_GAIN and least >= floor and small >= small_floor and \
             (may_make is None or may_make(added)) and (not sine.current or _valid_now(sine, removed, added))
     return accept
 
@@ -436,14 +461,14 @@ def _smooth(topo: TetTopology, t: int, frozen: set[int], sine: _Sines, stats: Im
         if v in frozen:
             continue
         star = sorted(topo.vertex_tets[v])
-        now, floor = min(sine(s) for s in star), sine.floor(star)
+        now, (floor, small_floor) = min(sine(s) for s in star), sine.floor(star)
         tried = [_merge([v] + parents, [1.0 - step] + [step * x for x in weights])
                  for parents, weights in candidates(topo, v, star, sine) for step in STEPS]
         if not tried:
             continue
         targets = np.array([np.asarray(w) @ rest[full] for full, w in tried])
-        for q, least, (full, w) in zip(*_star_sines(sine, star, (v,), targets), tried):
-            if q > now + MIN_GAIN and least >= floor:
+        for q, least, small, (full, w) in zip(*_star_sines(sine, star, (v,), targets), tried):
+            if q > now + MIN_GAIN and least >= floor and small >= small_floor:
                 moves.append((q - now, v, full, w))
     moves.sort(key=lambda m: -m[0])
     if may_move is not None and moves:  # asked at once: one query of the cut surface
@@ -532,10 +557,10 @@ def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sine
             continue  # the lips' fans around v and w share no edge (they do not match)
         bends = may_bend is not None and _inside_wound(topo, v, w, twins)
         star = sorted(topo.vertex_tets[v] | topo.vertex_tets[w])
-        now, floor = min(sine(s) for s in star), sine.floor(star)
+        now, (floor, small_floor) = min(sine(s) for s in star), sine.floor(star)
         points = np.array(targets) @ topo.rest_positions[[v] + lip]
-        for q, least, weights in zip(*_star_sines(sine, star, (v, w), points), targets):
-            if q > now + MIN_GAIN and least >= floor:
+        for q, least, small, weights in zip(*_star_sines(sine, star, (v, w), points), targets):
+            if q > now + MIN_GAIN and least >= floor and small >= small_floor:
                 moves.append((q - now, v, w, lip, mirrored, weights, bends))
     moves.sort(key=lambda m: -m[0])
     bent = [i for i, m in enumerate(moves) if m[6]]
@@ -574,23 +599,24 @@ def _along(count: int, i: int, f: float) -> list[float]:
 
 
 def _inside_wound(topo: TetTopology, v: int, w: int, twins: dict[int, int]) -> bool:
-    """Whether every boundary face at v is a lip of the wound: its copy (v as w, each other
-    vertex as its twin) is a boundary face at w. Then v is not on the outer boundary, and v and
-    w moving together keep the lips meeting face to face, whatever the shape of their fans."""
-    theirs = {tuple(sorted(face)) for face in topo.boundary_faces_at(w)}
-    return all(tuple(sorted(w if u == v else twins.get(u, u) for u in face)) in theirs
-               for face in topo.boundary_faces_at(v))
+    """Whether the boundary faces at v and at w are copies of each other (a face at v, with v
+    as w and each other vertex as its twin, is one at w, and w has no other): every one is a
+    lip of the wound. Then neither is on the outer boundary, and v and w moving together keep
+    the lips meeting face to face and the volume, whatever the shape of their fans (a face at w
+    alone, of a small cavity inside SOFA's ossicles, moved with w and changed the volume)."""
+    mine = {tuple(sorted(w if u == v else twins.get(u, u) for u in face)) for face in topo.boundary_faces_at(v)}
+    return mine == {tuple(sorted(face)) for face in topo.boundary_faces_at(w)}
 
 
-def _star_sines(sine: _Sines, star: list[int], moved, targets: np.ndarray) -> tuple[list, list]:
-    """The worst measure and the worst sine of elements ``star`` with vertices ``moved`` at
-    each of ``targets`` (K, 3) (rest configuration, m): two lists of K."""
+def _star_sines(sine: _Sines, star: list[int], moved, targets: np.ndarray) -> tuple[list, list, list]:
+    """The worst measure, sine and volume measure of elements ``star`` with vertices ``moved``
+    at each of ``targets`` (K, 3) (rest configuration, m): three lists of K."""
     tets = sine.topo.tets[star]
     corners = np.repeat(sine.topo.rest_positions[tets][None], len(targets), axis=0)  # (K, S, 4, 3)
     at = np.isin(tets, moved)
     corners[:, at] = targets[:, None]
-    measure, least = _sines(corners, sine.volume_scale)
-    return measure.min(axis=1).tolist(), least.min(axis=1).tolist()
+    measure, least, small = _sines(corners, sine.volume_scale)
+    return measure.min(axis=1).tolist(), least.min(axis=1).tolist(), small.min(axis=1).tolist()
 
 
 def _candidates(topo: TetTopology, v: int, star: list[int], sine: _Sines):
