@@ -82,7 +82,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..mesh import tet_volumes
-from .mesh import TetTopology, TopologyError, face_key
+from .mesh import TetTopology, TopologyError, face_key, signed_volume
 from .operators import (apply_contraction, boundary_plane_count, check_contraction, check_current, check_vertex_move,
                         flip23, move_vertex, remove_edge)
 
@@ -219,8 +219,9 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     off the planes of its lips' faces, whose fan is bent (without it, such a vertex slides only
     within a flat fan; the cutter allows a slide that ends no farther from the cut surface than
     the farthest vertex of the fan, ``parents[i]``);
-    ``may_make(tets)``: whether a flip or a contraction may make these elements (vertex lists;
-    the cutter refuses one with an edge across the cut surface). ``contract``: contract edges
+    ``may_make(tets, replaced)``: whether a flip or a contraction may make these elements
+    (vertex lists) in place of the live slots ``replaced`` (the cutter refuses one with an edge
+    across the cut surface that ``replaced`` do not have). ``contract``: contract edges
     too, merging a vertex made in the change being recorded (``topo.begin_change``) into a
     neighbour; the caller drops the vertices left without elements (``topo.drop_orphans``).
     ``on_surface``: the vertices on the cut surface, between which no edge or face flips (a
@@ -381,7 +382,7 @@ def _better(sine: _Sines, may_make=None):
         measure, least, small = sine.of(added)
         floor, small_floor = sine.floor(removed)
         return measure > min(sine(t) for t in removed) + MIN_GAIN and least >= floor and small >= small_floor and \
-            (may_make is None or may_make(added)) and (not sine.current or _valid_now(sine, removed, added))
+            (may_make is None or may_make(added, removed)) and (not sine.current or _valid_now(sine, removed, added))
     return accept
 
 
@@ -513,7 +514,11 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
                 checked = [check_contraction(topo, u_, w_, accept=None if len(pairs) > 1 else accept)
                            for u_, w_ in pairs]
             except TopologyError:
-                continue
+                if len(pairs) == 1:
+                    continue
+                checked = _bent_contraction(topo, pairs, twins)
+                if checked is None:
+                    continue
             if len(pairs) > 1 and not accept([s for c in checked for s in c[0]], [a for c in checked for a in c[1]]):
                 continue
             made = []
@@ -522,6 +527,35 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
             stats.contracted += len(pairs)
             return made
     return []
+
+
+def _bent_contraction(topo: TetTopology, pairs: list, twins: dict[int, int]):
+    """The two copies' contractions ``pairs`` where their lips are not flat (a wound bent
+    through a held vertex, whose copies the plane check of ``check_contraction`` refuses):
+    each lip moves as its copy does, so the two sides change their volumes by opposite amounts;
+    the rest of each vertex's boundary (the outer boundary, at the wound's rim) must keep its
+    planes. None where that fails or the total volume changes. (A split point of a face of the
+    organ's curved boundary, 0.05 edges from a crossing at the rim, merges into it: the worst
+    of 20 random Bielser cuts rises from 3.79 to 4.76 degrees.)"""
+    checked = []
+    for u, w in pairs:
+        lips = _lip_faces(topo, u, twins[u], twins)
+        try:
+            checked.append(check_contraction(topo, u, w, lips=lips))
+        except TopologyError:
+            return None
+    rest = topo.rest_tuples
+    before = sum(topo.rest_volume(t) for star, _, _ in checked for t in star)
+    after = sum(signed_volume(*[rest[v] for v in tet]) for _, added, _ in checked for tet in added)
+    return checked if abs(after - before) <= 1e-12 * before else None
+
+
+def _lip_faces(topo: TetTopology, v: int, w: int, twins: dict[int, int]) -> set:
+    """The boundary faces at v (sorted vertex triples) whose copy (v as w, each other vertex
+    as its twin) is a boundary face at w: v's part of the wound's lips."""
+    theirs = {tuple(sorted(face)) for face in topo.boundary_faces_at(w)}
+    return {tuple(sorted(face)) for face in topo.boundary_faces_at(v)
+            if tuple(sorted(w if u == v else twins.get(u, u) for u in face)) in theirs}
 
 
 def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sines, stats: ImproveStats,

@@ -416,10 +416,12 @@ def contract_edge(topo: TetTopology, u: int, w: int, *, accept=None, link_faces:
     return apply_contraction(topo, check_contraction(topo, u, w, accept=accept), link_faces=link_faces)
 
 
-def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None) -> tuple:
+def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None, lips=frozenset()) -> tuple:
     """Raise :class:`TopologyError` where :func:`contract_edge` would refuse; return what
     :func:`apply_contraction` makes. Changes nothing (a caller contracting two edges together,
-    the two copies of an edge of a wound's lips, checks both first)."""
+    the two copies of an edge of a wound's lips, checks both first). ``lips``: boundary faces
+    at u (sorted vertex triples) that may move, a wound's lip whose copy the other contraction
+    moves the same way; the volume of u's star is then the caller's to check, with the other's."""
     star = sorted(topo.vertex_tets[u])
     tets = [topo.tet(t) for t in star]
     kept = [tet for tet in tets if w not in tet]
@@ -431,7 +433,7 @@ def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None) -> tupl
     if topo.unsewn and any(face_key(*[x for x in tet if x != y]) in topo.unsewn for tet in tets for y in tet if y != u):
         raise TopologyError(f"contraction of edge ({u}, {w}): a face on {u} is unsewn")
     added = [_substitute(tet, u, w) for tet in kept]
-    if _off_its_planes(_boundary_normals(topo, u), topo.vertex_data[w, REST] - topo.vertex_data[u, REST]):
+    if _off_its_planes(_boundary_normals(topo, u, lips), topo.vertex_data[w, REST] - topo.vertex_data[u, REST]):
         raise TopologyError(f"contraction of edge ({u}, {w}) would take boundary vertex {u} off its boundary")
     if accept is not None and not (added and accept(star, added)):  # (asked first: it refuses most)
         raise TopologyError(f"contraction of edge ({u}, {w}): not an improvement")
@@ -440,7 +442,7 @@ def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None) -> tupl
     rest = topo.rest_tuples
     before = sum(topo.rest_volume(t) for t in star)
     after = sum(signed_volume(*[rest[v] for v in tet]) for tet in added)
-    if not abs(after - before) <= 1e-12 * before:  # (the elements all on the edge: none left)
+    if not lips and not abs(after - before) <= 1e-12 * before:  # (the elements all on the edge: none left)
         raise TopologyError(f"contraction of edge ({u}, {w}) would change the volume by "
                             f"{(after - before) / before:.1e}")
     return star, added, qualities
@@ -612,10 +614,12 @@ def _off_its_planes(normals: np.ndarray, step: np.ndarray) -> bool:
     return len(normals) > 0 and bool(np.abs(normals @ step).max() > 1e-12 * (np.linalg.norm(step) + 1e-300))
 
 
-def _boundary_normals(topo: TetTopology, v: int) -> np.ndarray:
-    """Unit normals (K, 3) of the boundary faces around vertex v."""
+def _boundary_normals(topo: TetTopology, v: int, leaving=frozenset()) -> np.ndarray:
+    """Unit normals (K, 3) of the boundary faces around vertex v (but those in ``leaving``,
+    sorted vertex triples)."""
     rest = topo.rest_tuples
-    normals = [_unit_normal(rest[a], rest[b], rest[c]) for a, b, c in topo.boundary_faces_at(v)]
+    normals = [_unit_normal(rest[a], rest[b], rest[c]) for a, b, c in topo.boundary_faces_at(v)
+               if not leaving or tuple(sorted((a, b, c))) not in leaving]
     return np.array(normals).reshape(-1, 3)
 
 
