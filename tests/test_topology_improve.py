@@ -359,14 +359,14 @@ def test_the_small_elements_a_cut_leaves_next_to_a_vertex_are_grown(point, norma
 @pytest.mark.parametrize("method, point, normal, worst", [
     ("paulus", [-0.001312, 0.012045, 0.009672], [0.40599, 0.37428, 0.83372], 5.0),
     ("paulus", [-0.022357, 0.024883, 0.015763], [-0.28896, -0.6619, -0.69166], 5.0),
-    ("bielser", [-0.007528, -0.01945, 0.000786], [0.45654, -0.77667, -0.43401], 3.5)])
+    ("bielser", [-0.007528, -0.01945, 0.000786], [0.45654, -0.77667, -0.43401], 5.0)])
 def test_a_wound_bent_by_a_held_vertex_slides_within_its_band(method, point, normal, worst):
     """Plane cuts of the organ that pass within the hold distance of boundary vertices: the
     cut bends through them, so the lips' fans around the split points next to them are not flat
     and no slide within their planes is possible (worst dihedral angles 2.0, 2.0 and 0.74
     degrees without the improvement). The vertices inside the wound slide off those planes with
-    their copies, no farther from the plane than their fans reach: the worst angle rises to
-    5 degrees (3.5 with Bielser's subdivision), no wound vertex ends farther from the plane than
+    their copies, no farther from the plane than their fans reach: the worst angle rises above
+    5 degrees (measured: 6.03, 6.03 and 5.52), no wound vertex ends farther from the plane than
     the cut alone left one, every vertex off the plane still has its copy at the same rest
     position, the volume is kept and the cut separates."""
     plane = Plane(point, normal)

@@ -358,7 +358,8 @@ class _Sines:
 
     def floor(self, slots) -> tuple[float, float]:
         """The worst sine and the worst volume measure a move that replaces or reshapes live
-        elements ``slots`` may leave: theirs, or ``goal`` where theirs is above."""
+        elements ``slots`` may leave: theirs, or where theirs is above, ``goal`` (for the volume
+        measure :data:`SMALL_SHARE` of it)."""
         if self.volume_scale is None:
             return -math.inf, -math.inf
         sines = [self._remembered(self.known_sines, t, None) for t in slots]
