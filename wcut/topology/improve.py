@@ -552,11 +552,17 @@ def _bent_contraction(topo: TetTopology, pairs: list, twins: dict[int, int]):
 
 
 def _lip_faces(topo: TetTopology, v: int, w: int, twins: dict[int, int]) -> set:
-    """The boundary faces at v (sorted vertex triples) whose copy (v as w, each other vertex
-    as its twin) is a boundary face at w: v's part of the wound's lips."""
+    """The boundary faces at v (sorted vertex triples) whose copy is a boundary face at w
+    (:func:`_copies`): v's part of the wound's lips."""
     theirs = {tuple(sorted(face)) for face in topo.boundary_faces_at(w)}
-    return {tuple(sorted(face)) for face in topo.boundary_faces_at(v)
-            if tuple(sorted(w if u == v else twins.get(u, u) for u in face)) in theirs}
+    return {face for face, copy in _copies(topo, v, w, twins).items() if copy in theirs}
+
+
+def _copies(topo: TetTopology, v: int, w: int, twins: dict[int, int]) -> dict:
+    """Each boundary face at v and its copy, with v as w and each other vertex as its twin
+    (sorted vertex triples)."""
+    return {tuple(sorted(face)): tuple(sorted(w if u == v else twins.get(u, u) for u in face))
+            for face in topo.boundary_faces_at(v)}
 
 
 def _slide(topo: TetTopology, t: int, twins: dict[int, int], pinned, sine: _Sines, stats: ImproveStats,
@@ -639,8 +645,7 @@ def _inside_wound(topo: TetTopology, v: int, w: int, twins: dict[int, int]) -> b
     lip of the wound. Then neither is on the outer boundary, and v and w moving together keep
     the lips meeting face to face and the volume, whatever the shape of their fans (a face at w
     alone, of a small cavity inside SOFA's ossicles, moved with w and changed the volume)."""
-    mine = {tuple(sorted(w if u == v else twins.get(u, u) for u in face)) for face in topo.boundary_faces_at(v)}
-    return mine == {tuple(sorted(face)) for face in topo.boundary_faces_at(w)}
+    return set(_copies(topo, v, w, twins).values()) == {tuple(sorted(face)) for face in topo.boundary_faces_at(w)}
 
 
 def _star_sines(sine: _Sines, star: list[int], moved, targets: np.ndarray) -> tuple[list, list, list]:
