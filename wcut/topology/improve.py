@@ -493,8 +493,9 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
     """Contract one of element t's edges, shortest first, merging a vertex the change made
     into the other end (``contract_edge``), where that raises the worst measure around it: a
     frozen vertex only inside the wound (its copy on the other lip merges into the other
-    end's copy, so the lips still meet; the two contractions are judged as one move), none
-    whose elements hold a pinned vertex."""
+    end's copy, so the lips still meet; the two contractions are judged as one move, and where
+    the lips are bent, :func:`_bent_contraction` checks them), none whose elements hold a
+    pinned vertex."""
     first = topo.first_new_vertex
     tet = topo.tet(t)
     rest = topo.rest_tuples
