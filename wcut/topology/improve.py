@@ -370,15 +370,14 @@ class _Sines:
         """Element t's volume measure (``volume_scale * 6 V``), remembered."""
         q = self.known_smalls.get(t)
         if q is None:
-            rest = self.topo.rest_tuples
-            p0, p1, p2, p3 = [rest[v] for v in self.topo.tets[t].tolist()]
-            q = self.known_smalls[t] = self.volume_scale * _dot(_sub(p1, p0), _cross(_sub(p2, p0), _sub(p3, p0)))
+            q = self.known_smalls[t] = self.volume_scale * 6.0 * self.topo.rest_volume(t)
         return q
 
 
 def _better(sine: _Sines, may_make=None):
-    """An ``accept`` for the flips: the new elements' worst measure exceeds the removed ones',
-    their worst sine stays above :meth:`_Sines.floor`, and ``may_make`` (if given) allows them."""
+    """An ``accept`` for the flips and contractions: the new elements' worst measure exceeds
+    the removed ones', their worst sine and worst volume measure stay above
+    :meth:`_Sines.floor`, and ``may_make`` (if given) allows them in place of the removed."""
     def accept(removed, added) -> bool:
         measure, least, small = sine.of(added)
         floor, small_floor = sine.floor(removed)
