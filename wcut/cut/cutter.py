@@ -383,13 +383,19 @@ class Cutter:
                 bielser_cut(self, surface, slots, stats)
             else:
                 self._remesh(surface, slots, stats)
-            if self.improve and self.flips and self.method != "delete":
+            improves = self.improve and self.flips and self.method != "delete"
+            if improves:
                 self._improve(surface, stats)
             if self.method != "delete" and isinstance(surface, TriangleSurface):
                 self._separate_sheets(surface, stats)  # (after the improvement, as for a plane)
                 self._separate_swept(surface, stats)
             if self.method != "delete" and type(surface) is Plane and bounds is None and not progressive:
-                self._separate(surface, stats)  # (after the improvement: what a move joined, it splits)
+                # (after the improvement: what a move joined, it splits; where it split, the
+                # improvement goes on with the copies as twins, and what that joins is split)
+                separated = self._separate(surface, stats)
+                if separated and improves:
+                    self._improve(surface, stats, near=separated)
+                    self._separate(surface, stats)
         finally:
             change = topo.end_change()
         changed = change.rest_changed_elements()
@@ -1336,7 +1342,7 @@ class Cutter:
                 opened_set.discard(mine[int(np.argmax([mesh.area(f) for f in mine]))])
         return [key for key in opened if key in opened_set]
 
-    def _separate(self, plane: Plane, stats: CutStats) -> None:
+    def _separate(self, plane: Plane, stats: CutStats) -> list[int]:
         """Make sure a complete plane cut separated the mesh: where the remeshing refused an
         operator (a split or a snap that would have made a flat element next to a poor one) an
         element may still reach a little across the plane, and the pieces stay joined there.
@@ -1349,34 +1355,37 @@ class Cutter:
         it departs from the plane by at most how far those elements reached across. Nothing
         moves and nothing is added but vertex copies: the volume is kept exactly. Where the
         remeshing succeeded no vertex has elements on both sides, and this costs one
-        vectorised pass."""
+        vectorised pass. Returns the vertices it separated and their copies."""
         topo = self.topology
         slots = self._candidates(plane, None)
         if not len(slots):
-            return
+            return []
         tets = topo.tets[slots]
         d = plane.signed_distance(self.coordinates()[tets].reshape(-1, 3)).reshape(-1, 4)
         sides = element_sides(d, self.in_plane * self.mean_edge_length)
         if not len(_on_both_sides(tets, sides, topo.vertex_count)):
-            return
+            return []
         joined, faces = self._between_sides(slots, sides)
         for key in faces:
             unsew_face(topo, key)
         stats.unsewn_faces += len(faces)
+        separated = list(joined)
         for v in joined:
-            self._duplicate(v, stats)
+            separated += self._duplicate(v, stats)
         stats.separated_vertices += len(joined)
         sew_unopened(topo)
+        return separated
 
-    def _improve(self, surface: CutSurface, stats: CutStats) -> None:
+    def _improve(self, surface: CutSurface, stats: CutStats, near=None) -> None:
         """Local mesh improvement (:mod:`wcut.topology.improve`) of the elements this cut made
         or changed and of the elements around their vertices. Frozen: the vertices on the cut
         surface (within the tolerance, on the wound's lips or split on it), so the cut surface,
         and the lips' match, stay as they are; a vertex inside the wound slides with its copy,
         within its lips' fan where that is flat, else within the band the fan spans about the
-        surface (``within_band`` below)."""
+        surface (``within_band`` below). ``near``: vertices (those :meth:`_separate` split and
+        their copies) to whose elements, and the elements around their vertices, it keeps to."""
         topo = self.topology
-        changed = topo.changed_tets()
+        changed = topo.changed_tets() if near is None else sorted(set().union(*(topo.vertex_tets[v] for v in near)))
         if not changed:
             return
         candidates = np.unique(topo.tets[changed])
@@ -1469,6 +1478,8 @@ class Cutter:
             for name in ("split_vertices", "wound_vertices", "_waiting_vertices", "_unsettled"):
                 kept = getattr(self, name) - dropped
                 setattr(self, name, {moved.get(v, v) for v in kept})
+            self._split_pairs = {moved.get(v, v): moved.get(w, w) for v, w in self._split_pairs.items()
+                                 if v not in dropped and w not in dropped}
         stats.improved_edge_flips += result.edge_flips
         stats.improved_face_flips += result.face_flips
         stats.smoothed_vertices += result.smoothed
