@@ -15,6 +15,7 @@ from wcut.topology import (TetTopology, TopologyError, bisect_edge, check_topolo
                            contract_edge, duplicate_vertex, face_key, flip23, move_vertex, remove_edge, sew_unopened,
                            split_face, split_tet, tet_qualities, tet_quality, unsew_face, vertex_fans)
 from wcut.topology.mesh import POSITION, REST, VELOCITY, signed_volume
+from wcut.topology.operators import _link_condition
 
 from conftest import nonconvex_pair, pyramid, ring, single_tet, two_tets
 
@@ -623,6 +624,16 @@ def test_contract_edge_keeps_a_vertex_on_its_boundary_and_its_elements_valid():
     assert not topo.vertex_tets[p]
     assert topo.drop_orphans() == ({p}, {}) and topo.vertex_count == count
     check_topology(topo)
+
+
+def test_the_link_condition_refuses_a_contraction_that_would_pinch_the_body():
+    """In a beam one element thick every vertex is on the boundary: an edge through the body
+    joins two of its sides, and contracting it would pinch them together however its elements
+    tile the star. Two elements on a face: their apex may merge into a corner of the face."""
+    topo = TetTopology(beam(2, 1, 1))
+    through = sorted(set(edges(topo)) - boundary_edges(topo))
+    assert through and not any(_link_condition(topo, u, w) or _link_condition(topo, w, u) for u, w in through)
+    assert _link_condition(TetTopology(two_tets()), 3, 0)
 
 
 def _change_sequence(topo):

@@ -1412,6 +1412,12 @@ class Cutter:
             # pairs this cut split are the twins of its lips
             pairs = self._split_pairs
             twins.update((v, w) for v, w in pairs.items() if pairs.get(w) == v and v in frozen and w in frozen)
+            if self.method == "paulus":  # a wound vertex on the cut with no copy (where the lips
+                # meet: a blade's front) is its own twin; Bielser's cut bisects the front's
+                # crossings again at each increment, and merging them away left a beam hinged
+                on_cut = set(on)
+                twins.update((v, v) for (v, *more) in copies.values() if not more and v in self.wound_vertices
+                             and v in on_cut and v not in twins)
         if not self.smooths_under_blade:
             frozen |= self._waiting_vertices
         coordinates, tolerance = self.coordinates(), self.tolerance

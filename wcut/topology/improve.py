@@ -41,10 +41,12 @@ improves the elements a change made, and their neighbours, in the rest configura
   neighbour (``contract_edge``), the elements on their edge go and the others around it take
   the neighbour instead; a vertex inside the wound only together with its twin, into the
   neighbour's twin, so the lips still meet face to face; the pair is one move, judged on both
-  stars together (one lip may get worse, not below the worst of both). What no move can grow,
-  the elements between vertices a few hundredths of an edge apart on the wound (a plane
-  passing close to a vertex of the boundary, which may not move), goes. The contracted
-  vertices are dropped when the improvement ends (``TetTopology.drop_orphans``): only vertices
+  stars together (one lip may get worse, not below the worst of both); where the lips meet at
+  a vertex the cut did not duplicate (a blade's front), it merges alone into another such
+  vertex. Every contraction keeps the link condition (the mesh's topology and its
+  boundary's). What no move can grow, the elements between vertices a few hundredths of an
+  edge apart on the wound (a plane passing close to a vertex of the boundary, which may not
+  move), goes. The contracted vertices are dropped when the improvement ends (``TetTopology.drop_orphans``): only vertices
   of the change, which the change record then never mentions.
 
 The measure is the smallest sine of an element's six dihedral angles (:func:`min_sine`):
@@ -207,11 +209,12 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     ``target`` (degrees) or whose rest volume is below ``min_volume`` (m^3), and what the
     moves make. ``frozen``: vertices that must not move alone (the cut surface). ``twins``: the
     copy on the other lip of each vertex inside the wound (both ways; a vertex the cut did not
-    duplicate, at the wound's front, maps to itself), for sliding. ``pinned``: vertices that
-    may move but between which no edge or face flips, and whose elements no contraction removes
-    (those of a progressive cut's elements still under the blade: flipping them made the two
-    lips of a curved wound differ in their triangulation once the blade had passed); an edge
-    from one of them to a vertex of ``on_surface`` may flip (:func:`_flip_lock`).
+    duplicate, where its lips meet at a blade's front, maps to itself), for sliding and
+    contracting. ``pinned``: vertices that may move but between which no edge or face flips,
+    and no element all of whose vertices they are does a contraction remove or reshape (those
+    of a progressive cut's elements still under the blade: flipping them made the two lips of
+    a curved wound differ in their triangulation once the blade had passed); an edge from one
+    of them to a vertex of ``on_surface`` may flip (:func:`_flip_lock`).
     ``may_move(vertices, parents, weights)``: per move of ``vertices[i]`` to the combination
     ``parents[i]``, ``weights[i]``, whether smoothing may make it (a boolean array; the cutter
     refuses a move onto or across the cut surface, which would join the sides);
@@ -493,8 +496,11 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
     into the other end (``contract_edge``), where that raises the worst measure around it: a
     frozen vertex only inside the wound (its copy on the other lip merges into the other
     end's copy, so the lips still meet; the two contractions are judged as one move, and where
-    the lips are bent, :func:`_bent_contraction` checks them), none whose elements hold a
-    pinned vertex."""
+    the lips are bent, :func:`_bent_contraction` checks them) or, where it is its own twin (the
+    lips meet there, at a blade's front), into another such vertex alone; none that removes or
+    reshapes an element of pinned vertices only (one the blade is still in: an element with
+    some pinned vertices may go, which halves the increments of 144 straight blades leaving
+    an element below 5 degrees, most at the front)."""
     first = topo.first_new_vertex
     tet = topo.tet(t)
     rest = topo.rest_tuples
@@ -503,13 +509,15 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
         for u, w in ((a, b), (b, a)):
             if u < first or u in pinned or (u in frozen and (u not in twins or not topo.boundary_faces_at(u))):
                 continue
+            if twins.get(u) == u and twins.get(w) != w:
+                continue  # (into a vertex with a copy, one lip would take the other's faces)
             pairs = [(u, w)]
             if twins.get(u, u) != u:  # and its copy on the other lip, made by the change too
                 if w not in twins or twins[u] < first:
                     continue
                 pairs.append((twins[u], twins[w]))
-            if pinned and any(not pinned.isdisjoint(topo.tets[s].tolist()) for u_, _ in pairs
-                              for s in topo.vertex_tets[u_]):
+            if pinned and any(pinned.issuperset(topo.tets[s].tolist())
+                              for u_, _ in pairs for s in topo.vertex_tets[u_]):
                 continue
             try:  # the two copies' contractions as one move: judged on both stars at once
                 checked = [check_contraction(topo, u_, w_, accept=None if len(pairs) > 1 else accept)

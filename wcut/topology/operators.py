@@ -409,10 +409,10 @@ def contract_edge(topo: TetTopology, u: int, w: int, *, accept=None, link_faces:
 
     Refused unless every new element is well shaped and their volume is that of u's star (they
     then tile it), w lies in the plane of every boundary face around u (u slides within a flat
-    boundary or along a straight crease, so the boundary stays: as :func:`move_vertex`), no
-    face on u is unsewn, and, with ``accept`` (mesh improvement), ``accept(removed, added)``
-    (slots, vertex lists). ``link_faces``: as in :meth:`TetTopology.replace_tets`. Returns the
-    new elements."""
+    boundary or along a straight crease, so the boundary stays: as :func:`move_vertex`), the
+    link condition holds (:func:`_link_condition`), no face on u is unsewn, and, with
+    ``accept`` (mesh improvement), ``accept(removed, added)`` (slots, vertex lists).
+    ``link_faces``: as in :meth:`TetTopology.replace_tets`. Returns the new elements."""
     return apply_contraction(topo, check_contraction(topo, u, w, accept=accept), link_faces=link_faces)
 
 
@@ -437,6 +437,8 @@ def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None, lips=fr
         raise TopologyError(f"contraction of edge ({u}, {w}) would take boundary vertex {u} off its boundary")
     if accept is not None and not (added and accept(star, added)):  # (asked first: it refuses most)
         raise TopologyError(f"contraction of edge ({u}, {w}): not an improvement")
+    if not _link_condition(topo, u, w):
+        raise TopologyError(f"contraction of edge ({u}, {w}) would change the mesh's topology (link condition)")
     qualities: list[float] = []
     _check(topo, added, f"contraction of edge ({u}, {w})", None, qualities)
     if not lips:
@@ -447,6 +449,35 @@ def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None, lips=fr
             raise TopologyError(f"contraction of edge ({u}, {w}) would change the volume by "
                                 f"{(after - before) / before:.1e}")
     return star, added, qualities
+
+
+def _link_condition(topo: TetTopology, u: int, w: int) -> bool:
+    """Whether contracting edge (u, w) keeps the topology of the mesh and of its boundary: the
+    links of u and w share only the link of the edge (Dey, Edelsbrunner, Guha and Nekhayev
+    1999), the boundary coned to a vertex outside (-1). Tiling the star with its volume does
+    not ensure it: where a wound's lips meet at u (a blade's front), a contraction that tiles
+    the star may leave an element hanging loose or sew a face of one lip to the other."""
+    def closure(simplex: tuple, into: set) -> None:
+        into.add(simplex)
+        if len(simplex) > 1:
+            for i in range(len(simplex)):
+                closure(simplex[:i] + simplex[i + 1:], into)
+
+    def link(v: int) -> set:
+        found: set = set()
+        for t in topo.vertex_tets[v]:
+            closure(tuple(sorted(x for x in topo.tet(t) if x != v)), found)
+        for face in topo.boundary_faces_at(v):
+            closure(tuple(sorted([x for x in face if x != v] + [-1])), found)
+        return found
+
+    edge: set = set()
+    for t in topo.vertex_tets[u] & topo.vertex_tets[w]:
+        closure(tuple(sorted(x for x in topo.tet(t) if x != u and x != w)), edge)
+    for face in topo.boundary_faces_at(u):
+        if w in face:
+            closure(tuple(sorted([x for x in face if x != u and x != w] + [-1])), edge)
+    return (link(u) & link(w)) <= edge
 
 
 def apply_contraction(topo: TetTopology, checked: tuple, *, link_faces: bool = True) -> list[int]:
