@@ -13,6 +13,7 @@ from conftest import assert_separates, load_tool, single_tet
 from wcut.cut import METHODS, CutError, Cutter, Plane, Polygon, SweptBlade, TriangleSurface
 from wcut.cut.cutter import (CAP_HOLD, CORNER_PIECES, CRUMB_ELEMENTS, CRUMB_QUALITY, CRUMB_VOLUME, CURVED_HOLD,
                              REGULAR_QUALITY)
+import wcut.cut.cutter as cutter_module
 from wcut.cut.surface import strip
 from wcut.cut.separation import element_sides, plane_separation
 from wcut.mesh import TetMesh, beam, dihedral_angles, perturbed, tet_volumes
@@ -324,6 +325,28 @@ def test_a_blade_leaves_no_face_in_its_cut_sewn():
         check_topology(topo, mesh.volumes().sum())
     assert_separates(topo, Plane([x_c, 0.0, 0.0], [1.0, 0.0, 0.0]), cutter)
     assert connected_components(topo.to_mesh()).max() == 1
+
+
+def test_a_blade_that_has_left_the_body_separates_it_near_where_it_came_in_and_out(monkeypatch):
+    """The blade of test_a_blade_leaves_no_face_in_its_cut_sewn in 14 increments: vertices near
+    where S's boundary entered and left the beam are looked at once the blade is in no element;
+    without that they wait for a blade that has gone, and the beam stays in one piece."""
+    mesh = beam(4, 2, 2, size=(0.16, 0.04, 0.04))
+    x_c = 0.08 + 0.05 * mesh.mean_edge_length()
+    sweep = SweptBlade(np.array([[[x_c, -0.004, h], [x_c, 0.044, h]] for h in np.linspace(0.044, -0.004, 15)]))
+    plane = Plane([x_c, 0.0, 0.0], [1.0, 0.0, 0.0])
+    for settles in (True, False):
+        if not settles:
+            monkeypatch.setattr(cutter_module, "_faced", lambda *args: set())
+        topo = TetTopology(mesh)
+        cutter = Cutter(topo, method="bielser", epsilon=0.0)
+        for k in range(1, sweep.frame_count):
+            cutter.cut(sweep.increment(k), progressive=True)
+        check_topology(topo, mesh.volumes().sum(), volume_tolerance=1e-9)
+        after = topo.to_mesh()
+        separation = plane_separation(after.vertices, after.tets, plane, cutter.tolerance,
+                                      mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
+        assert separation.separated == settles, separation.describe()
 
 
 def _bent(rest: np.ndarray) -> np.ndarray:
@@ -1059,7 +1082,6 @@ def test_a_curved_boundary_holds_the_cut_off_a_corner_too_small_for_its_pieces(p
     CORNER_PIECES times the smallest volume keeps them above 1e-3 of the median on these organ
     planes (1.3e-3 to 1.8e-3); at the smallest volume alone (``pieces`` 1) every one of them
     left an element of 4.5e-4 to 5.3e-4."""
-    import wcut.cut.cutter as cutter_module
 
     monkeypatch.setattr(cutter_module, "CORNER_PIECES", pieces)
     organ = _organ()
