@@ -1527,13 +1527,7 @@ def _improve_min_volume(topology: TetTopology) -> float:
 
 def _far_from_rim(surface: TriangleSurface, points: np.ndarray, reach: np.ndarray) -> np.ndarray:
     """(M,) whether S's boundary is farther than ``reach`` (M,) (m) from ``points`` (M, 3) (m)."""
-    rim = surface.vertices[_boundary_edges(surface.triangles)]  # (B, 2, 3)
-    if not len(rim):
-        return np.ones(len(points), dtype=bool)
-    count = len(rim)  # every point against every rim edge, as rows
-    distance = _point_segment_distance(np.repeat(points, count, axis=0), np.tile(rim[:, 0], (len(points), 1)),
-                                       np.tile(rim[:, 1], (len(points), 1)))
-    return distance.reshape(len(points), count).min(axis=1) > reach
+    return _rim_distance(surface, points) > reach
 
 
 def _faced(surface: TriangleSurface, vertices: np.ndarray, x: np.ndarray, tolerance: float) -> set[int]:
@@ -1541,13 +1535,18 @@ def _faced(surface: TriangleSurface, vertices: np.ndarray, x: np.ndarray, tolera
     than ``tolerance`` (m) (``x``: all vertex positions, m): their side of S stays as it is
     however S grows past its boundary."""
     points = x[vertices]
+    return set(vertices[surface.distance(points) < _rim_distance(surface, points) - tolerance].tolist())
+
+
+def _rim_distance(surface: TriangleSurface, points: np.ndarray) -> np.ndarray:
+    """(M,) distance (m) from ``points`` (M, 3) (m) to S's boundary (inf where S has none)."""
     rim = surface.vertices[_boundary_edges(surface.triangles)]  # (B, 2, 3)
     if not len(rim):
-        return set(vertices.tolist())
+        return np.full(len(points), np.inf)
     count = len(rim)  # every point against every rim edge, as rows
-    to_rim = _point_segment_distance(np.repeat(points, count, axis=0), np.tile(rim[:, 0], (len(points), 1)),
-                                     np.tile(rim[:, 1], (len(points), 1))).reshape(len(points), count).min(axis=1)
-    return set(vertices[surface.distance(points) < to_rim - tolerance].tolist())
+    distance = _point_segment_distance(np.repeat(points, count, axis=0), np.tile(rim[:, 0], (len(points), 1)),
+                                       np.tile(rim[:, 1], (len(points), 1)))
+    return distance.reshape(len(points), count).min(axis=1)
 
 
 def _flat_near(surface: TriangleSurface, points: np.ndarray, normals: np.ndarray, reach: np.ndarray) -> np.ndarray:

@@ -46,8 +46,9 @@ improves the elements a change made, and their neighbours, in the rest configura
   vertex. Every contraction keeps the link condition (the mesh's topology and its
   boundary's). What no move can grow, the elements between vertices a few hundredths of an
   edge apart on the wound (a plane passing close to a vertex of the boundary, which may not
-  move), goes. The contracted vertices are dropped when the improvement ends (``TetTopology.drop_orphans``): only vertices
-  of the change, which the change record then never mentions.
+  move), goes. The contracted vertices are dropped when the improvement ends
+  (``TetTopology.drop_orphans``): only vertices of the change, which the change record then
+  never mentions.
 
 The measure is the smallest sine of an element's six dihedral angles (:func:`min_sine`):
 small for slivers, needles and caps alike (a dihedral angle near 0 or near 180 degrees both
@@ -498,9 +499,9 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
     end's copy, so the lips still meet; the two contractions are judged as one move, and where
     the lips are bent, :func:`_bent_contraction` checks them) or, where it is its own twin (the
     lips meet there, at a blade's front), into another such vertex alone; none that removes or
-    reshapes an element of pinned vertices only (one the blade is still in: an element with
-    some pinned vertices may go, which halves the increments of 144 straight blades leaving
-    an element below 5 degrees, most at the front)."""
+    reshapes an element of pinned vertices only (one the blade is still in), while one with
+    some pinned vertices may go: most elements a blade leaves below 5 degrees are at its
+    front, next to those it is still in."""
     first = topo.first_new_vertex
     tet = topo.tet(t)
     rest = topo.rest_tuples

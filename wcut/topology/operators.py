@@ -455,8 +455,8 @@ def _link_condition(topo: TetTopology, u: int, w: int) -> bool:
     """Whether contracting edge (u, w) keeps the topology of the mesh and of its boundary: the
     links of u and w share only the link of the edge (Dey, Edelsbrunner, Guha and Nekhayev
     1999), the boundary coned to a vertex outside (-1). Tiling the star with its volume does
-    not ensure it: where a wound's lips meet at u (a blade's front), a contraction that tiles
-    the star may leave an element hanging loose or sew a face of one lip to the other."""
+    not ensure it: where a wound's lips meet at u (a blade's front), a contraction that tiled
+    the star left an element hanging loose, joined to nothing."""
     def closure(simplex: tuple, into: set) -> None:
         into.add(simplex)
         if len(simplex) > 1:
