@@ -327,28 +327,6 @@ def test_a_blade_leaves_no_face_in_its_cut_sewn():
     assert connected_components(topo.to_mesh()).max() == 1
 
 
-def test_a_blade_that_has_left_the_body_separates_it_near_where_it_came_in_and_out(monkeypatch):
-    """The blade of test_a_blade_leaves_no_face_in_its_cut_sewn in 14 increments: vertices near
-    where S's boundary entered and left the beam are looked at once the blade is in no element;
-    without that they wait for a blade that has gone, and the beam stays in one piece."""
-    mesh = beam(4, 2, 2, size=(0.16, 0.04, 0.04))
-    x_c = 0.08 + 0.05 * mesh.mean_edge_length()
-    sweep = SweptBlade(np.array([[[x_c, -0.004, h], [x_c, 0.044, h]] for h in np.linspace(0.044, -0.004, 15)]))
-    plane = Plane([x_c, 0.0, 0.0], [1.0, 0.0, 0.0])
-    for settles in (True, False):
-        if not settles:
-            monkeypatch.setattr(cutter_module, "_faced", lambda *args: set())
-        topo = TetTopology(mesh)
-        cutter = Cutter(topo, method="bielser", epsilon=0.0)
-        for k in range(1, sweep.frame_count):
-            cutter.cut(sweep.increment(k), progressive=True)
-        check_topology(topo, mesh.volumes().sum(), volume_tolerance=1e-9)
-        after = topo.to_mesh()
-        separation = plane_separation(after.vertices, after.tets, plane, cutter.tolerance,
-                                      mean_edge_length=cutter.mean_edge_length, in_plane=cutter.in_plane)
-        assert separation.separated == settles, separation.describe()
-
-
 def _bent(rest: np.ndarray) -> np.ndarray:
     """Current positions of a bent beam: x shifted by 10 z^2 (up to 16 mm at the top), z sagging by 2 x^2."""
     x, y, z = rest.T

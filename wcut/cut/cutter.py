@@ -1192,12 +1192,7 @@ class Cutter:
         vertices duplicated per fan. Left alone until a later increment: vertices of elements
         the blade is still in, and vertices nearer S's boundary (beyond which S does not cut)
         or a bend of S (over :data:`SWEPT_BEND` degrees) than twice their elements' reach:
-        folds are :meth:`_separate_sheets`' work. While the blade is in no element (it has
-        left the body), a vertex near S's boundary is looked at where every corner of its
-        elements faces S's inside (its nearest point of S is off S's boundary): a blade
-        leaving a beam a tenth of an edge below it left the two pieces hinged at their top and
-        bottom, near where it came in and went out (Bielser's cut at epsilon 0, 5 of 24 paths
-        through a coarse beam; 2 with this). On 72 straight blades through the organ (12
+        folds are :meth:`_separate_sheets`' work. On 72 straight blades through the organ (12
         to 30 increments) 3 left it in one piece without this, none with it. Nothing moves:
         the volume stays exactly."""
         topo = self.topology
@@ -1227,9 +1222,6 @@ class Cutter:
         np.maximum.at(reach, rows, np.linalg.norm(x[topo.tets[np.concatenate(stars)]] - x[vertices][rows][:, None],
                                                   axis=2).max(axis=1))
         inside = _far_from_rim(surface, x[vertices], 2.0 * reach)
-        if not waiting and not inside.all():  # S's boundary passes through no element: it stays
-            faced = _faced(surface, np.unique(topo.tets[np.concatenate(stars)]), x, self.tolerance)
-            inside |= np.array([faced.issuperset(topo.tets[star].ravel().tolist()) for star in stars])
         self._unsettled.update(vertices[~inside].tolist())  # (S's boundary may move on: a blade's front)
         vertices, reach = vertices[inside], reach[inside]
         if not len(vertices):
@@ -1527,26 +1519,13 @@ def _improve_min_volume(topology: TetTopology) -> float:
 
 def _far_from_rim(surface: TriangleSurface, points: np.ndarray, reach: np.ndarray) -> np.ndarray:
     """(M,) whether S's boundary is farther than ``reach`` (M,) (m) from ``points`` (M, 3) (m)."""
-    return _rim_distance(surface, points) > reach
-
-
-def _faced(surface: TriangleSurface, vertices: np.ndarray, x: np.ndarray, tolerance: float) -> set[int]:
-    """Those of ``vertices`` whose nearest point of S lies inside S, off its boundary by more
-    than ``tolerance`` (m) (``x``: all vertex positions, m): their side of S stays as it is
-    however S grows past its boundary."""
-    points = x[vertices]
-    return set(vertices[surface.distance(points) < _rim_distance(surface, points) - tolerance].tolist())
-
-
-def _rim_distance(surface: TriangleSurface, points: np.ndarray) -> np.ndarray:
-    """(M,) distance (m) from ``points`` (M, 3) (m) to S's boundary (inf where S has none)."""
     rim = surface.vertices[_boundary_edges(surface.triangles)]  # (B, 2, 3)
     if not len(rim):
-        return np.full(len(points), np.inf)
+        return np.ones(len(points), dtype=bool)
     count = len(rim)  # every point against every rim edge, as rows
     distance = _point_segment_distance(np.repeat(points, count, axis=0), np.tile(rim[:, 0], (len(points), 1)),
                                        np.tile(rim[:, 1], (len(points), 1)))
-    return distance.reshape(len(points), count).min(axis=1)
+    return distance.reshape(len(points), count).min(axis=1) > reach
 
 
 def _flat_near(surface: TriangleSurface, points: np.ndarray, normals: np.ndarray, reach: np.ndarray) -> np.ndarray:

@@ -212,9 +212,10 @@ def improve(topo: TetTopology, elements, frozen: set[int], *, target: float = TA
     copy on the other lip of each vertex inside the wound (both ways; a vertex the cut did not
     duplicate, where its lips meet at a blade's front, maps to itself), for sliding and
     contracting. ``pinned``: vertices that may move but between which no edge or face flips,
-    and no element all of whose vertices they are does a contraction remove or reshape (those
-    of a progressive cut's elements still under the blade: flipping them made the two lips of
-    a curved wound differ in their triangulation once the blade had passed); an edge from one
+    and whose elements no contraction removes or reshapes, but for one of a vertex that is its
+    own twin, which spares only the elements all of whose vertices are pinned (those of a
+    progressive cut's elements still under the blade: flipping them made the two lips of a
+    curved wound differ in their triangulation once the blade had passed); an edge from one
     of them to a vertex of ``on_surface`` may flip (:func:`_flip_lock`).
     ``may_move(vertices, parents, weights)``: per move of ``vertices[i]`` to the combination
     ``parents[i]``, ``weights[i]``, whether smoothing may make it (a boolean array; the cutter
@@ -498,10 +499,12 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
     frozen vertex only inside the wound (its copy on the other lip merges into the other
     end's copy, so the lips still meet; the two contractions are judged as one move, and where
     the lips are bent, :func:`_bent_contraction` checks them) or, where it is its own twin (the
-    lips meet there, at a blade's front), into another such vertex alone; none that removes or
-    reshapes an element of pinned vertices only (one the blade is still in), while one with
-    some pinned vertices may go: most elements a blade leaves below 5 degrees are at its
-    front, next to those it is still in."""
+    lips meet there, at a blade's front), into another such vertex alone. None removes or
+    reshapes an element with a pinned vertex, but that one at the front, whose elements next
+    to those the blade is still in may go (most elements a blade leaves below 5 degrees are
+    there); it spares the elements of pinned vertices only. (Other contractions there changed
+    what the blade's next increments cut: on the AR S-example, the worst cut event of Bielser's
+    method at epsilon 0.1 fell from 3.5 to 1.2 degrees.)"""
     first = topo.first_new_vertex
     tet = topo.tet(t)
     rest = topo.rest_tuples
@@ -517,7 +520,8 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
                 if w not in twins or twins[u] < first:
                     continue
                 pairs.append((twins[u], twins[w]))
-            if pinned and any(pinned.issuperset(topo.tets[s].tolist())
+            if pinned and any((pinned.issuperset(topo.tets[s].tolist()) if twins.get(u) == u
+                               else not pinned.isdisjoint(topo.tets[s].tolist()))
                               for u_, _ in pairs for s in topo.vertex_tets[u_]):
                 continue
             try:  # the two copies' contractions as one move: judged on both stars at once
