@@ -85,9 +85,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..mesh import tet_volumes
-from .mesh import TetTopology, TopologyError, face_key, signed_volume
+from .mesh import TetTopology, TopologyError, face_key
 from .operators import (apply_contraction, boundary_plane_count, check_contraction, check_current, check_vertex_move,
-                        flip23, move_vertex, remove_edge)
+                        flip23, move_vertex, remove_edge, replaced_volumes)
 
 #: Elements whose smallest dihedral angle is below this (degrees) are improved.
 TARGET_ANGLE = 6.0
@@ -513,14 +513,15 @@ def _contract(topo: TetTopology, t: int, frozen: set[int], twins: dict[int, int]
         for u, w in ((a, b), (b, a)):
             if u < first or u in pinned or (u in frozen and (u not in twins or not topo.boundary_faces_at(u))):
                 continue
-            if twins.get(u) == u and twins.get(w) != w:
+            alone = twins.get(u) == u  # (where the lips meet: a blade's front)
+            if alone and twins.get(w) != w:
                 continue  # (into a vertex with a copy, one lip would take the other's faces)
             pairs = [(u, w)]
             if twins.get(u, u) != u:  # and its copy on the other lip, made by the change too
                 if w not in twins or twins[u] < first:
                     continue
                 pairs.append((twins[u], twins[w]))
-            if pinned and any((pinned.issuperset(topo.tets[s].tolist()) if twins.get(u) == u
+            if pinned and any((pinned.issuperset(topo.tets[s].tolist()) if alone
                                else not pinned.isdisjoint(topo.tets[s].tolist()))
                               for u_, _ in pairs for s in topo.vertex_tets[u_]):
                 continue
@@ -558,17 +559,21 @@ def _bent_contraction(topo: TetTopology, pairs: list, twins: dict[int, int]):
             checked.append(check_contraction(topo, u, w, lips=lips))
         except TopologyError:
             return None
-    rest = topo.rest_tuples
-    before = sum(topo.rest_volume(t) for star, _, _ in checked for t in star)
-    after = sum(signed_volume(*[rest[v] for v in tet]) for _, added, _ in checked for tet in added)
+    before, after = replaced_volumes(topo, [t for star, _, _ in checked for t in star],
+                                     [tet for _, added, _ in checked for tet in added])
     return checked if abs(after - before) <= 1e-12 * before else None
 
 
 def _lip_faces(topo: TetTopology, v: int, w: int, twins: dict[int, int]) -> set:
     """The boundary faces at v (sorted vertex triples) whose copy is a boundary face at w
     (:func:`_copies`): v's part of the wound's lips."""
-    theirs = {tuple(sorted(face)) for face in topo.boundary_faces_at(w)}
+    theirs = _faces_at(topo, w)
     return {face for face, copy in _copies(topo, v, w, twins).items() if copy in theirs}
+
+
+def _faces_at(topo: TetTopology, v: int) -> set:
+    """The boundary faces at v (sorted vertex triples)."""
+    return {tuple(sorted(face)) for face in topo.boundary_faces_at(v)}
 
 
 def _copies(topo: TetTopology, v: int, w: int, twins: dict[int, int]) -> dict:
@@ -658,7 +663,7 @@ def _inside_wound(topo: TetTopology, v: int, w: int, twins: dict[int, int]) -> b
     lip of the wound. Then neither is on the outer boundary, and v and w moving together keep
     the lips meeting face to face and the volume, whatever the shape of their fans (a face at w
     alone, of a small cavity inside SOFA's ossicles, moved with w and changed the volume)."""
-    return set(_copies(topo, v, w, twins).values()) == {tuple(sorted(face)) for face in topo.boundary_faces_at(w)}
+    return set(_copies(topo, v, w, twins).values()) == _faces_at(topo, w)
 
 
 def _star_sines(sine: _Sines, star: list[int], moved, targets: np.ndarray) -> tuple[list, list, list]:

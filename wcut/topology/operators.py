@@ -392,8 +392,7 @@ def remove_edge(topo: TetTopology, a: int, b: int, *, allow_volume_change: bool 
     if accept is not None and not accept(ring, added):
         raise TopologyError(f"general flip of edge ({a}, {b}): not an improvement")
     if not closed:
-        before = sum(topo.rest_volume(t) for t in ring)
-        after = sum(signed_volume(*[rest[v] for v in t]) for t in added)
+        before, after = replaced_volumes(topo, ring, added)
         if abs(after - before) > volume_tolerance * before and not allow_volume_change:
             raise TopologyError(f"general flip of boundary edge ({a}, {b}) would change the volume by "
                                 f"{(after - before) / before:.1e} (its boundary faces are not coplanar)")
@@ -442,13 +441,19 @@ def check_contraction(topo: TetTopology, u: int, w: int, *, accept=None, lips=fr
     qualities: list[float] = []
     _check(topo, added, f"contraction of edge ({u}, {w})", None, qualities)
     if not lips:
-        rest = topo.rest_tuples
-        before = sum(topo.rest_volume(t) for t in star)
-        after = sum(signed_volume(*[rest[v] for v in tet]) for tet in added)
+        before, after = replaced_volumes(topo, star, added)
         if not abs(after - before) <= 1e-12 * before:  # (the elements all on the edge: none left)
             raise TopologyError(f"contraction of edge ({u}, {w}) would change the volume by "
                                 f"{(after - before) / before:.1e}")
     return star, added, qualities
+
+
+def replaced_volumes(topo: TetTopology, removed, added: list[list[int]]) -> tuple[float, float]:
+    """The rest volumes (m^3) of live elements ``removed`` (slots) and of the elements
+    ``added`` (vertex lists) meant to replace them: equal where ``added`` tiles ``removed``."""
+    rest = topo.rest_tuples
+    return (sum(topo.rest_volume(t) for t in removed),
+            sum(signed_volume(*[rest[v] for v in tet]) for tet in added))
 
 
 def _link_condition(topo: TetTopology, u: int, w: int) -> bool:
